@@ -1,0 +1,25 @@
+# Two entry points on a fresh machine with Python 3.11: `make demo` and `make test`.
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+DATA_ROOT ?= ../shared/data
+# Disables the YNNPACK fusion pass that miscompiles jitted reductions in jaxlib 0.10.2 (see tests/test_jax_regression.py).
+export XLA_FLAGS := --xla_cpu_experimental_ynn_fusion_type= $(XLA_FLAGS)
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $@
+
+.PHONY: install demo test bench
+install: $(VENV)/.installed
+
+demo: install
+	$(PY) -m experiments.shelf_jcsat --out runs/demo
+
+test: install
+	$(PY) -m pytest -q --data-root $(DATA_ROOT)
+
+bench: install
+	$(PY) -m experiments.bench_geometry --json
