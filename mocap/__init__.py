@@ -1,3 +1,11 @@
 """Motion sources, multi-view scene synthesis with a 2D detector model, and real-dataset loaders."""
 
 from ._detections import *  # noqa: F403
+from ._shelf_campus import *  # noqa: F403
+from ._motion import *  # noqa: F403
+from ._asf_amc import *  # noqa: F403
+from ._bvh import *  # noqa: F403
+from ._clips import *  # noqa: F403
+from ._procedural import *  # noqa: F403
+from ._detector import *  # noqa: F403
+from ._scene import *  # noqa: F403

@@ -12,7 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BODY25_PAF_PAIRS", "Detections", "PaddedDetections", "pad_detections"]
+__all__ = ["BODY25_PAF_PAIRS", "Detections", "PaddedDetections", "oracle_keypoints", "pad_detections"]
 
 BODY25_PAF_PAIRS: tuple[tuple[int, int], ...] = tuple(zip(
     (1, 9, 10, 8, 8, 12, 13, 1, 2, 3, 2, 1, 5, 6, 5, 1, 0, 0, 15, 16, 14, 19, 14, 11, 22, 11),
@@ -79,3 +79,24 @@ def pad_detections(frames: list[list[Detections]], max_candidates: int | None = 
                 if has_ids:
                     ids[f, v, j, :n] = det.person_ids[j]
     return PaddedDetections(xy, score, mask, ids if has_ids else None)
+
+
+def oracle_keypoints(padded: PaddedDetections, num_people: int) -> np.ndarray:
+    """Per person the best-scoring candidate of every joint type, using synthetic ground-truth ids.
+
+    This is the *oracle* association (it reads ``person_ids``), for training targets and for
+    separating triangulation error from association error; it is unavailable for real detections.
+    Returns ``(frames, views, people, joint types, 3)``: x, y in pixels and the score, with zeros
+    where the person has no candidate of that joint type in that view.
+    """
+    if padded.person_ids is None:
+        raise ValueError("oracle_keypoints needs synthetic detections with person_ids")
+    people = np.arange(num_people)[:, None]  # (people, 1) against candidates on the last axis
+    own = padded.person_ids[..., None, :] == people  # (F, V, J, P, C)
+    score = np.where(own & padded.mask[..., None, :], padded.score[..., None, :], -1.0)
+    best = score.argmax(-1)  # (F, V, J, P)
+    xy = np.take_along_axis(padded.xy[..., None, :, :], best[..., None, None], axis=-2)[..., 0, :]
+    conf = np.take_along_axis(score, best[..., None], axis=-1)[..., 0]
+    found = conf >= 0.0
+    out = np.where(found[..., None], np.concatenate([xy, conf[..., None]], axis=-1), 0.0)  # (F, V, J, P, 3)
+    return np.moveaxis(out, 3, 2)

@@ -1,0 +1,117 @@
+"""Speed of the batched, jitted Structural Triangulation against the per-frame NumPy port.
+
+Run: ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= .venv/bin/python -m experiments.bench_structri --json``
+(about a minute on 2 CPU cores). Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
+NumPy per frame, float64, H36M17, virtual round ring), the speed-up, the max relative difference, the
+compile times, and the optimistix reference's time per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+from geometry import H36M17  # noqa: E402
+from structri import (constrained_reference, lem_triangulation, numpy_lem_triangulation,  # noqa: E402
+                      numpy_structural_triangulation, structural_triangulation)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    frames: int = 10_000
+    """Frames for the batched jax solvers."""
+    numpy_frames: int = 200
+    """Frames timed for the per-frame NumPy port (normalised to frames/s)."""
+    reference_frames: int = 5
+    views: int = 4
+    n_steps: int = 3
+    sigma: float = 6.0
+    seed: int = 0
+    repeats: int = 3
+
+
+def make_problem(cfg: Config):
+    """Random near-T-poses (metres, y-up), the spec's round ring, noisy 2D points."""
+    rng = np.random.default_rng(cfg.seed)
+    by_child = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
+                "spine": 0.23, "thorax": 0.25, "neck": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
+                "r_elbow": 0.28, "l_elbow": 0.28, "r_wrist": 0.25, "l_wrist": 0.25}
+    lengths = np.array([by_child[H36M17.joints[c]] for _, c in H36M17.bones])
+    bone_of = {c: k for k, (_, c) in enumerate(H36M17.bones)}
+    poses = np.zeros((cfg.frames, 17, 3))
+    poses[:, 0] = rng.normal(scale=0.05, size=(cfg.frames, 3))
+    for j in H36M17.topological_order[1:]:
+        d = rng.normal(size=(cfg.frames, 3))
+        poses[:, j] = poses[:, H36M17.parents[j]] + lengths[bone_of[j]] * d / np.linalg.norm(d, axis=1, keepdims=True)
+    theta = 2 * np.pi * np.arange(cfg.views) / cfg.views
+    K = np.array([[900.0, 0.5, 500.0], [0.0, 900.0, 500.0], [0.0, 0.0, 1.0]])
+    P = np.stack([K @ np.array([[np.cos(t), 0, np.sin(t), 0], [0, 1, 0, 0], [-np.sin(t), 0, np.cos(t), 2.0]])
+                  for t in theta])
+    h = np.einsum("vab,fjb->fvja", P[:, :, :3], poses) + P[None, :, None, :, 3]
+    points = h[..., :2] / h[..., 2:] + cfg.sigma * rng.normal(size=h.shape[:-1] + (2,))
+    return points, P, lengths
+
+
+def _best_time(fn, repeats):
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def _compare(name, jax_fn, numpy_fn, points, cfg):
+    t = time.perf_counter()
+    out = jax.block_until_ready(jax_fn(points))
+    compile_s = time.perf_counter() - t
+    jax_s = _best_time(lambda: jax_fn(points), cfg.repeats)
+    few = points[:cfg.numpy_frames]
+    t = time.perf_counter()
+    ref = np.stack([numpy_fn(p) for p in few])
+    numpy_s = time.perf_counter() - t
+    ours = np.asarray(out)[:cfg.numpy_frames]
+    jax_fps, numpy_fps = cfg.frames / jax_s, cfg.numpy_frames / numpy_s
+    return {f"{name}_jax_frames_per_s": jax_fps, f"{name}_compile_s": compile_s,
+            f"{name}_numpy_frames_per_s": numpy_fps, f"{name}_speedup_vs_numpy": jax_fps / numpy_fps,
+            f"{name}_max_rel_diff": float(np.max(np.abs(ours - ref)) / np.max(np.abs(ref)))}
+
+
+def run(cfg: Config) -> dict:
+    points, P, lengths = make_problem(cfg)
+    out = {"config": dataclasses.asdict(cfg), "backend": jax.default_backend(), "dtype": "float64"}
+    st = jax.jit(lambda p: structural_triangulation(p, P, lengths, n_steps=cfg.n_steps).pose)
+    out |= _compare("st", st, lambda p: numpy_structural_triangulation(p, P, lengths, n_steps=cfg.n_steps),
+                    points, cfg)
+    lem = jax.jit(lambda p: lem_triangulation(p, P).pose)
+    out |= _compare("lem", lem, lambda p: numpy_lem_triangulation(p, P), points, cfg)
+    jax.block_until_ready(constrained_reference(points[0], P, lengths).pose)  # compile
+    t = time.perf_counter()
+    for f in range(1, cfg.reference_frames + 1):
+        jax.block_until_ready(constrained_reference(points[f], P, lengths).pose)
+    out["reference_s_per_frame"] = (time.perf_counter() - t) / cfg.reference_frames
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    for field in dataclasses.fields(Config):
+        parser.add_argument(f"--{field.name.replace('_', '-')}", type=type(field.default), default=field.default,
+                            help=f"{field.name} (default {field.default})")
+    parser.add_argument("--json", action="store_true", help="print one JSON object (otherwise key: value lines)")
+    args = vars(parser.parse_args(argv))
+    as_json = args.pop("json")
+    result = run(Config(**args))
+    print(json.dumps(result) if as_json else "\n".join(f"{k}: {v}" for k, v in result.items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,83 @@
+"""Guards against the jaxlib 0.10.2 CPU miscompilation of jitted broadcast-multiply-reduce code.
+
+jaxlib 0.10.2 routes some jitted reductions to its new YNNPACK fusion and returns wrong numbers,
+with no error, once the batch is larger than about 10k (jax-ml/jax#39103; notes in
+/work/shared/specs/jax_notes.md, section 1). The project disables that fusion with
+``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=`` (Makefile, tests/conftest.py) and excludes
+the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
+"""
+
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from geometry import triangulate
+from geometry._triangulate import _triangulate_flat
+
+WORKAROUND = "--xla_cpu_experimental_ynn_fusion_type="
+
+# Minimal repro of jax-ml/jax#39103: sum over axis 0 of a[:, :, None, :] * a[:, None, :, :].
+REPRO = """
+import sys
+import jax
+import numpy as np
+a = np.random.default_rng(0).uniform(size=(4, 4, 100_000)).astype(np.float32)
+jitted = np.asarray(jax.jit(lambda a: (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0))(a))
+expected = np.einsum("kin,kjn->ijn", a, a)
+error = float(np.abs(jitted - expected).max())
+print(f"jaxlib {jax.lib.__version__ if hasattr(jax.lib, '__version__') else '?'}: max error {error:.3g}")
+sys.exit(0 if error < 1e-4 else 1)
+"""
+
+
+def broadcast_multiply_reduce_error() -> float:
+    a = np.random.default_rng(0).uniform(size=(4, 4, 100_000)).astype(np.float32)
+    jitted = jax.jit(lambda a: (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0))(a)
+    return float(np.abs(np.asarray(jitted) - np.einsum("kin,kjn->ijn", a, a)).max())
+
+
+def test_installed_jaxlib_has_no_ynn_fusion_miscompilation():
+    """The repro in a fresh interpreter whose XLA_FLAGS lack the workaround.
+
+    The flag only takes effect before jax initialises its backend, and this process (like every
+    project entry point) already runs with it, which would hide the bug. A subprocess with the flag
+    removed from its environment therefore tests the installed jaxlib itself: it fails on 0.10.2
+    (every element wrong, max error ~35) and passes on 0.10.1."""
+    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+    done = subprocess.run([sys.executable, "-c", REPRO], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"installed jaxlib miscompiles the repro without {WORKAROUND}:\n{done.stdout}{done.stderr}"
+
+
+def test_repro_is_exact_with_the_project_configuration():
+    assert WORKAROUND in os.environ.get("XLA_FLAGS", "").split()
+    assert broadcast_multiply_reduce_error() < 1e-4
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_triangulation_under_jit_equals_eager_at_100k_points(dtype):
+    """How the bug first showed: the element-wise DLT kernel went wrong for N >= ~10k under jit."""
+    rng = np.random.default_rng(0)
+    projections = np.array(
+        [
+            [[900.0, 0.0, 640.0, 0.0], [0.0, 900.0, 360.0, 0.0], [0.0, 0.0, 1.0, 0.0]],
+            [[900.0, 0.0, 640.0, -450.0], [0.0, 900.0, 360.0, 0.0], [0.0, 0.0, 1.0, 0.0]],
+        ],
+        dtype,
+    )
+    points = rng.uniform([-1, -1, 3], [1, 1, 9], (100_000, 3))
+    homogeneous = np.einsum("vij,nj->nvi", projections.astype(np.float64), np.column_stack([points, np.ones(len(points))]))
+    pixels = (homogeneous[..., :2] / homogeneous[..., 2:] + rng.normal(0, 0.5, (len(points), 2, 2))).astype(dtype)
+    weights = np.ones((len(points), 2), dtype)
+    jitted = triangulate(projections, pixels, weights)
+    with jax.disable_jit():
+        eager = _triangulate_flat(jnp.asarray(projections), jnp.asarray(pixels), jnp.asarray(weights), "closed_form", False, 1e4)
+    assert bool(jitted.valid.all()) and bool(eager.valid.all())
+    tolerance = 1e-9 if dtype == np.float64 else 1e-3
+    np.testing.assert_allclose(jitted.point, eager.point, rtol=tolerance, atol=tolerance)
+    np.testing.assert_allclose(jitted.point, points, atol=1.0)  # both right, not merely equal

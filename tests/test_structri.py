@@ -1,0 +1,206 @@
+"""Structural Triangulation: against the plain NumPy port, the certified optimistix reference, the
+paper's qualitative claims (anchor table, spec section 7), and the robustness contract."""
+
+import jax
+import numpy as np
+import pytest
+
+from geometry import H36M17, Camera, Skeleton, bone_lengths
+from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
+                      lem_triangulation, ls_triangulation, numpy_structural_triangulation_frames,
+                      reduced_objective, reduced_problem, structural_triangulation)
+
+# H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
+_LENGTH = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
+           "spine": 0.23, "thorax": 0.25, "neck": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
+           "r_elbow": 0.28, "l_elbow": 0.28, "r_wrist": 0.25, "l_wrist": 0.25}
+_DIRECTION = {"r_hip": (-1, 0, 0), "l_hip": (1, 0, 0), "r_knee": (0, -1, 0), "l_knee": (0, -1, 0),
+              "r_ankle": (0, -1, 0), "l_ankle": (0, -1, 0), "spine": (0, 1, 0), "thorax": (0, 1, 0),
+              "neck": (0, 1, 0), "head": (0, 1, 0), "r_shoulder": (-1, 0, 0), "l_shoulder": (1, 0, 0),
+              "r_elbow": (-1, -0.3, 0), "l_elbow": (1, -0.3, 0), "r_wrist": (-1, -0.3, 0.2), "l_wrist": (1, -0.3, 0.2)}
+LENGTHS = np.array([_LENGTH[H36M17.joints[c]] for _, c in H36M17.bones])
+
+
+def synthetic_poses(frames, rng, root_spread=0.05):
+    """y-up poses around a T-pose with exact constant bone lengths, pelvis near the origin (metres)."""
+    poses = np.zeros((frames, H36M17.num_joints, 3))
+    poses[:, 0] = rng.normal(scale=root_spread, size=(frames, 3))
+    for j in H36M17.topological_order[1:]:
+        d = np.array(_DIRECTION[H36M17.joints[j]], float) + 0.4 * rng.normal(size=(frames, 3))
+        poses[:, j] = poses[:, H36M17.parents[j]] + _LENGTH[H36M17.joints[j]] * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return poses
+
+
+def virtual_rig(views, pattern, unit=1.0):
+    """Spec section 5: R_y(theta_i), t = [0, 0, 2 m], f = 900 px, skew 0.5, principal point (500, 500)."""
+    span = 2 * np.pi if pattern == "round" else np.pi
+    K = np.array([[900.0, 0.5, 500.0], [0.0, 900.0, 500.0], [0.0, 0.0, 1.0]])
+    theta = span * np.arange(views) / views
+    c, s, z, o = np.cos(theta), np.sin(theta), np.zeros(views), np.ones(views)
+    R = np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+    return Camera.create(np.broadcast_to(K, (views, 3, 3)), R, np.tile([0.0, 0.0, 2.0 * unit], (views, 1)))
+
+
+def observe(rig, poses, sigma, rng):
+    P = np.einsum("vab,vbc->vac", np.asarray(rig.K), np.concatenate([np.asarray(rig.R), np.asarray(rig.t)[..., None]], -1))
+    h = np.einsum("vab,fjb->fvja", P[:, :, :3], poses) + P[None, :, None, :, 3]
+    return h[..., :2] / h[..., 2:] + sigma * rng.normal(size=h.shape[:-1] + (2,)), P
+
+
+def mpjpe(a, b):
+    return float(np.mean(np.linalg.norm(np.asarray(a) - b, axis=-1)))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(0)
+    poses = synthetic_poses(24, rng)
+    rig = virtual_rig(4, "round")
+    points, P = observe(rig, poses, 6.0, rng)
+    return poses, rig, points, P
+
+
+def test_matches_numpy_reference(scene):
+    poses, rig, points, P = scene
+    for steps in (1, 3):
+        ours = structural_triangulation(points, rig, LENGTHS, n_steps=steps)
+        ref = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=steps)
+        np.testing.assert_allclose(ours.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
+        assert np.all(np.asarray(ours.status) == Status.OK)
+    ls = ls_triangulation(points, P)
+    ref = numpy_structural_triangulation_frames(points, P, LENGTHS, method="LS")
+    np.testing.assert_allclose(ls.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
+
+
+def test_reduced_problem_matches_sparse_inverse(scene):
+    """A from the official (GQ)^T D (GQ) route and b0 = A^-1 beta equal the per-joint LS bones."""
+    _, _, points, P = scene
+    A, beta = reduced_problem(points[0], P)
+    b0 = np.linalg.solve(np.asarray(A), np.asarray(beta)).reshape(-1, 3)
+    np.testing.assert_allclose(b0, ls_triangulation(points[0], P).bones, rtol=1e-9, atol=1e-12)
+
+
+def test_jit_equals_eager(scene):
+    _, rig, points, _ = scene
+    jitted = jax.jit(lambda p: structural_triangulation(p, rig, LENGTHS, n_steps=2).pose)(points[:2])
+    with jax.disable_jit():
+        eager = structural_triangulation(points[:2], rig, LENGTHS, n_steps=2).pose
+    np.testing.assert_allclose(jitted, eager, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("pattern,views", [("round", 3), ("half", 2)])
+def test_anchor_ordering_in_millimetres(pattern, views):
+    """Spec section 7 (official code works in mm): ST < LS < LEM in MPJPE, ST <= LEM in most frames,
+    and the bone lengths of ST within a fraction of a millimetre."""
+    rng = np.random.default_rng(1)
+    poses = 1000.0 * synthetic_poses(24, rng)
+    points, P = observe(virtual_rig(views, pattern, unit=1000.0), poses, 6.0, rng)
+    st = structural_triangulation(points, P, 1000.0 * LENGTHS)
+    ls, lem = ls_triangulation(points, P), lem_triangulation(points, P)
+    assert mpjpe(st.pose, poses) < mpjpe(ls.pose, poses) < mpjpe(lem.pose, poses)
+    per_frame = lambda r: np.mean(np.linalg.norm(np.asarray(r.pose) - poses, axis=-1), axis=-1)  # noqa: E731
+    assert np.mean(per_frame(st) <= per_frame(lem)) >= 0.8
+    assert np.mean(np.abs(np.linalg.norm(np.asarray(st.bones), axis=-1) - 1000.0 * LENGTHS)) < 0.5
+    lagrangian = lagrangian_triangulation(points, P, 1000.0 * LENGTHS, millimetres_per_unit=1.0)
+    assert abs(mpjpe(lagrangian.pose, poses) - mpjpe(ls.pose, poses)) < 1.0
+
+
+def test_bone_length_error_at_two_pixels():
+    rng = np.random.default_rng(2)
+    poses = synthetic_poses(32, rng)
+    points, P = observe(virtual_rig(4, "round"), poses, 2.0, rng)
+    st = structural_triangulation(points, P, LENGTHS)
+    assert np.max(np.abs(np.linalg.norm(np.asarray(st.bones), axis=-1) - LENGTHS)) < 0.5e-3
+    np.testing.assert_allclose(bone_lengths(st.pose, H36M17), np.linalg.norm(np.asarray(st.bones), axis=-1), atol=1e-12)
+
+
+def test_against_certified_reference(scene):
+    poses, _, points, P = scene
+    st = structural_triangulation(points[:4], P, LENGTHS)
+    exact = structural_triangulation(points[:4], P, LENGTHS, update="exact")
+    ls = ls_triangulation(points[:4], P)
+    gaps, pose_gaps = [], []
+    for f in range(4):
+        ref = constrained_reference(points[f], P, LENGTHS)
+        assert bool(ref.certified), (float(ref.kkt_residual), float(ref.reduced_hessian_min_eigenvalue))
+        A, beta = reduced_problem(points[f], P)
+        objective = lambda b: float(reduced_objective(A, beta, b))  # noqa: E731
+        gaps.append(abs(objective(st.bones[f]) - objective(ref.bones)) / (objective(ref.bones) - objective(ls.bones[f])))
+        pose_gaps.append(np.max(np.abs(np.asarray(st.pose[f] - ref.pose))))
+        np.testing.assert_allclose(np.linalg.norm(np.asarray(ref.bones), axis=-1), LENGTHS, rtol=1e-9)
+    assert np.median(gaps) < 0.01
+    assert np.max(pose_gaps) < 5e-3  # metres
+    violation = lambda r: np.abs(np.linalg.norm(np.asarray(r.bones), axis=-1) - LENGTHS)  # noqa: E731
+    assert np.max(violation(exact)) <= np.max(violation(st))
+    assert np.max(violation(st)) < 2e-3
+
+
+def test_schedules_and_single_step_agree_at_one_step(scene):
+    _, _, points, P = scene
+    a = structural_triangulation(points[:4], P, LENGTHS, n_steps=1)
+    b = structural_triangulation(points[:4], P, LENGTHS, n_steps=1, schedule="squared")
+    np.testing.assert_allclose(a.pose, b.pose, rtol=1e-12, atol=1e-12)
+    c = structural_triangulation(points[:4], P, LENGTHS, n_steps=3, schedule="squared")
+    assert np.max(np.abs(np.linalg.norm(np.asarray(c.bones), axis=-1) - LENGTHS)) < 2e-3
+
+
+def test_estimated_lengths_symmetric(scene):
+    _, _, points, P = scene
+    est = np.asarray(estimate_bone_lengths(points, P, H36M17, frames=np.arange(12)))
+    for k, (_, child) in enumerate(H36M17.bones):
+        mirror = [i for i, (_, c) in enumerate(H36M17.bones) if c == H36M17.mirror[child]][0]
+        assert est[k] == pytest.approx(est[mirror], rel=1e-12)
+    np.testing.assert_allclose(est, LENGTHS, rtol=0.15)
+
+
+def test_degenerate_two_opposite_cameras():
+    rng = np.random.default_rng(3)
+    poses = synthetic_poses(20, rng, root_spread=0.0)  # pelvis on the camera axis: parallel rays
+    points, P = observe(virtual_rig(2, "round"), poses, 6.0, rng)
+    for solver in (lambda: structural_triangulation(points, P, LENGTHS),
+                   lambda: lem_triangulation(points, P), lambda: ls_triangulation(points, P)):
+        result = solver()
+        assert np.all(np.isfinite(np.asarray(result.pose)))
+    st = structural_triangulation(points, P, LENGTHS)
+    assert np.all(np.asarray(st.status) == Status.SINGLE_STEP)
+    single = structural_triangulation(points, P, LENGTHS, n_steps=1)
+    np.testing.assert_allclose(st.pose, single.pose, rtol=0, atol=1e-12)
+    assert mpjpe(st.pose, poses) < mpjpe(ls_triangulation(points, P).pose, poses)
+
+
+def test_missing_and_far_lengths_are_finite(scene):
+    _, _, points, P = scene
+    conf = np.full(points.shape[:-1], 0.25)
+    conf[:, 1:, 9] = 0.0  # head seen by one view only: A is singular
+    conf[:, 0, 10] = 0.0  # right wrist loses one view: still well posed
+    conf[0, :, 5] = 0.0  # left ankle unseen in frame 0
+    st = structural_triangulation(points, P, LENGTHS, confidences=conf)
+    assert np.all(np.isfinite(np.asarray(st.pose)))
+    assert np.all(np.asarray(st.status) == Status.UNDERDETERMINED)
+    conf[:, :, 9] = 0.25
+    conf[0, :, 5] = 0.25
+    st = structural_triangulation(points, P, LENGTHS, confidences=conf)
+    assert np.all(np.asarray(st.status) == Status.OK)
+    far = structural_triangulation(points, P, 3.0 * LENGTHS)
+    assert np.all(np.isfinite(np.asarray(far.pose)))
+    assert set(np.unique(np.asarray(far.status))) <= {Status.OK, Status.FALLBACK_LS}
+
+
+def test_clear_errors(scene):
+    _, rig, points, P = scene
+    with pytest.raises(ValueError, match="bone_lengths"):
+        structural_triangulation(points, P, LENGTHS[:-1])
+    with pytest.raises(ValueError, match="points_2d"):
+        structural_triangulation(points[..., :16, :], P, LENGTHS)
+    with pytest.raises((ValueError, TypeError), match="projections|views"):
+        structural_triangulation(points, P[:3], LENGTHS)
+    with pytest.raises((ValueError, TypeError), match="confidences|joints"):
+        structural_triangulation(points, P, LENGTHS, confidences=np.ones(points.shape[:-2] + (3,)))
+    with pytest.raises(ValueError, match="at least 2 views"):
+        structural_triangulation(points[:, :1], P[:1], LENGTHS)
+    with pytest.raises(ValueError, match="tree"):
+        Skeleton("loop", ("a", "b", "c"), (-1, 2, 1))
+    with pytest.raises(TypeError, match="Skeleton"):
+        structural_triangulation(points, P, LENGTHS, skeleton=(-1, 0, 0))
+    with pytest.raises(ValueError, match="distortion"):
+        structural_triangulation(points, rig._replace(dist=rig.dist.at[:, 0].set(0.1)), LENGTHS)
