@@ -26,7 +26,7 @@ from ._skeleton import SHELF15, Skeleton
 
 __all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "to_shelf15", "to_shelf15_validity"]
 
-HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose"]
+HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose", "h36m"]
 """How Shelf15 joints 12 (bottom of head) and 13 (top of head) are derived (metres, world z up).
 
 ``"4da"``
@@ -44,6 +44,10 @@ HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose"]
     VoxelPose ``coco2campus3D``: ``s12 = hb``, ``s13 = ht`` (ears and shoulders only).
 ``"mvpose"``
     MVPose ``coco2shelf3D`` (both datasets): the VoxelPose Shelf rule without the final 0.75/0.25 blend.
+``"h36m"``
+    For ground truth on the H36M17 joint set (our synthetic scenes): ``s12`` = H36M's "Neck/Nose"
+    joint, ``s13`` = its head top, and ``s14`` = the centre of the hips as in Shelf's ground truth
+    (H36M's pelvis joint sits higher). Independent of the face keypoints detectors see.
 
 VoxelPose and MVPose compute in millimetres, but every output of their rules is an affine combination
 of input points (per axis: weights summing to one), so it commutes with the mm -> m scale and the rule
@@ -54,7 +58,7 @@ not meaningful for y-up data.
 
 HEAD_RULES: tuple[str, ...] = typing.get_args(HeadRule)
 
-_DEFAULT_HEAD_RULE: dict[str, str] = {"BODY25": "4da", "SKEL19": "4da"}
+_DEFAULT_HEAD_RULE: dict[str, str] = {"BODY25": "4da", "SKEL19": "4da", "H36M17": "h36m"}
 """Source skeletons with a default head rule (their own method's). COCO17 has none: VoxelPose, MVPose
 and JCSAT all score COCO17 predictions, each with its own rule, so the caller must name one."""
 
@@ -143,7 +147,12 @@ def _shelf15_table(source: Skeleton, head_rule: str | None) -> _Shelf15Table:
         rows["mid_hip"] = per_axis(_combination(source, {"l_hip": 0.5, "r_hip": 0.5}))
 
     face_axes = None
-    if not has_head:
+    if not has_head and head_rule == "h36m":
+        rows["head_bottom"] = per_axis(_combination(source, {"neck_nose": 1.0}))
+        rows["head_top"] = per_axis(_combination(source, {"head": 1.0}))
+        # Shelf's ground-truth mid-hip is the centre of the hips; H36M's pelvis sits ~10 cm higher.
+        rows["mid_hip"] = per_axis(_combination(source, {"l_hip": 0.5, "r_hip": 0.5}))
+    elif not has_head:
         shoulder_c = _combination(source, {"l_shoulder": 0.5, "r_shoulder": 0.5})
         ear_c = _combination(source, {"l_ear": 0.5, "r_ear": 0.5})
         head_bottom = 0.5 * shoulder_c + 0.5 * ear_c  # 4DA's s12 and VoxelPose's hb coincide

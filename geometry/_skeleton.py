@@ -184,15 +184,16 @@ SKEL19 = _tree(
 H36M17 = _tree(
     "H36M17",
     ("mid_hip", "r_knee", "r_hip", "l_hip", "l_knee", "l_ankle", "r_ankle", "spine", "thorax",
-     "head", "r_wrist", "r_elbow", "r_shoulder", "l_shoulder", "l_elbow", "l_wrist", "neck"),
+     "head", "r_wrist", "r_elbow", "r_shoulder", "l_shoulder", "l_elbow", "l_wrist", "neck_nose"),
     {"mid_hip": None, "r_hip": "mid_hip", "l_hip": "mid_hip", "spine": "mid_hip",
-     "thorax": "spine", "neck": "thorax", "head": "neck", "r_shoulder": "thorax",
+     "thorax": "spine", "neck_nose": "thorax", "head": "neck_nose", "r_shoulder": "thorax",
      "l_shoulder": "thorax", **_ARMS_LEGS},
     pcp_parts=_LIMB_PARTS,
 )
 """Human3.6M 17 joints in the Structural Triangulation order: root first, bone k ends at joint k + 1
-(parents ``[-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]``). ``neck`` is H36M's
-"Neck/Nose" point and ``l_ankle``/``r_ankle`` its "Foot" joints."""
+(parents ``[-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]``). ``neck_nose`` is H36M's
+"Neck/Nose" point (above OpenPose's neck, which is nearer H36M's ``thorax``), and ``l_ankle``/``r_ankle``
+its "Foot" joints."""
 
 SMPL24 = _tree(
     "SMPL24",

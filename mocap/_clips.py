@@ -9,7 +9,7 @@ together and kept in their common frame, 1 otherwise):
   person), ``description``.
 
 :func:`load_clip` returns a :class:`Clip` in float64 METRES; SHELF15/SHELF14 come from the H36M17
-joints (:func:`~mocap.h36m17_to_shelf15`). Positions are quantised to 1 mm (error <= 0.5 mm).
+joints (``geometry.to_shelf15`` with the ``"h36m"`` head rule). Positions are quantised to 1 mm (error <= 0.5 mm).
 The data was obtained from mocap.cs.cmu.edu (see ``mocap/assets/ACKNOWLEDGEMENTS.md``).
 """
 
@@ -23,11 +23,11 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float
 
-from geometry import BODY25, H36M17, Skeleton
+from geometry import BODY25, H36M17, Skeleton, to_shelf15
 
 from ._asf_amc import read_asf_amc
 from ._bvh import CMU_METRES_PER_UNIT, SALSA_METRES_PER_UNIT, read_bvh
-from ._motion import Motion, h36m17_to_shelf15, motion_joint_positions, resample_motion
+from ._motion import Motion, motion_joint_positions, resample_motion
 
 __all__ = ["ASSETS", "CLIP_SOURCES", "Clip", "clip_from_motions", "list_clips", "load_clip",
            "read_clip_sources", "save_clip"]
@@ -77,7 +77,7 @@ class Clip(NamedTuple):
         if skeleton.name == "H36M17":
             return self.h36m17
         if skeleton.name in ("SHELF15", "SHELF14"):
-            shelf = h36m17_to_shelf15(self.h36m17)
+            shelf = np.asarray(to_shelf15(self.h36m17, H36M17))
             return shelf if skeleton.name == "SHELF15" else shelf[..., :14, :]
         raise ValueError(f"a clip has no {skeleton.name} joints; use BODY25, H36M17, SHELF15 or SHELF14")
 

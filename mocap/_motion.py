@@ -54,8 +54,9 @@ r_heel            rfoot + (0, -0.05, -0.05)                rFoot + (0, -0.05, -0
 Left joints mirror the right ones (``l`` names, x offset negated). The face and foot offsets are
 anthropometric guesses for an adult (eye 7 cm below the crown, ears 7.5 cm to the side, heel 5 cm
 behind and below the ankle centre); they give the 2D detector model keypoints that move with the
-head and feet, not anatomy to the centimetre. SHELF15/SHELF14 come from H36M17 (:func:`h36m17_to_shelf15`):
-``head_bottom`` = H36M ``neck``, ``head_top`` = H36M ``head``, ``mid_hip`` = mean of the hips (Shelf's joint 14).
+head and feet, not anatomy to the centimetre. SHELF15/SHELF14 come from H36M17 through
+``geometry.to_shelf15(h36m17, H36M17)`` (head rule ``"h36m"``: ``head_bottom`` = H36M ``neck_nose``,
+``head_top`` = H36M ``head``).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ import numpy as np
 from jaxtyping import Float
 
 import geometry
-from geometry import H36M17, SHELF14, Skeleton
+from geometry import H36M17, SHELF14, Skeleton, to_shelf15
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -77,7 +78,6 @@ __all__ = [
     "euler_matrices",
     "resample_motion",
     "motion_joint_positions",
-    "h36m17_to_shelf15",
 ]
 
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -259,7 +259,7 @@ def _cmu_table(root: str) -> dict[str, dict[str, tuple]]:
         "r_shoulder": ("node", "rhumerus"), "r_elbow": ("node", "rradius"), "r_wrist": ("node", "rwrist"),
     }
     h36m = {**limbs, "mid_hip": ("node", root), "spine": ("node", "upperback"),
-            "thorax": ("node", "lowerneck"), "neck": ("node", "upperneck"), "head": ("node", "head_end")}
+            "thorax": ("node", "lowerneck"), "neck_nose": ("node", "upperneck"), "head": ("node", "head_end")}
     body25 = {
         **limbs, "mid_hip": ("mid", "lfemur", "rfemur"), "neck": ("mid", "lhumerus", "rhumerus"),
         "nose": ("offset", "head_end", (0.0, -0.10, 0.10)),
@@ -279,7 +279,7 @@ def _daz_table() -> dict[str, dict[str, tuple]]:
         "r_shoulder": ("node", "rShldr"), "r_elbow": ("node", "rForeArm"), "r_wrist": ("node", "rHand"),
     }
     h36m = {**limbs, "mid_hip": ("node", "hip"), "spine": ("node", "chest"), "thorax": ("node", "neck"),
-            "neck": ("node", "head"), "head": ("offset", "head", (0.0, 0.19, 0.02))}
+            "neck_nose": ("node", "head"), "head": ("offset", "head", (0.0, 0.19, 0.02))}
     body25 = {
         **limbs, "mid_hip": ("mid", "lThigh", "rThigh"), "neck": ("mid", "lShldr", "rShldr"),
         "nose": ("offset", "head", (0.0, 0.06, 0.11)),
@@ -318,7 +318,7 @@ def motion_joint_positions(motion: Motion, skeleton: Skeleton) -> Float[np.ndarr
     See the module docstring for the table of which source node feeds which joint.
     """
     if skeleton.name in ("SHELF15", "SHELF14"):
-        shelf = h36m17_to_shelf15(motion_joint_positions(motion, H36M17))
+        shelf = np.asarray(to_shelf15(motion_joint_positions(motion, H36M17), H36M17))
         return shelf if skeleton.name == "SHELF15" else shelf[:, :14]
     if skeleton.name not in ("H36M17", "BODY25"):
         raise ValueError(f"no mapping to {skeleton.name}; use H36M17, BODY25, SHELF15 or SHELF14")
@@ -335,14 +335,4 @@ def motion_joint_positions(motion: Motion, skeleton: Skeleton) -> Float[np.ndarr
             out[:, k] = motion.positions[:, j] + motion.global_rotations[:, j] @ np.asarray(spec[2])
     return out
 
-
-def h36m17_to_shelf15(h36m: Float[np.ndarray, "*batch 17 3"]) -> Float[np.ndarray, "*batch 15 3"]:
-    """SHELF15 joints from H36M17 ones: limbs by name, ``head_bottom`` = H36M ``neck``,
-    ``head_top`` = H36M ``head``, ``mid_hip`` = mean of the two hips (Shelf's joint 14)."""
-    h36m = np.asarray(h36m)
-    source = {"head_bottom": "neck", "head_top": "head"}
-    idx = [H36M17.index(source.get(j, j)) for j in SHELF14.joints]
-    shelf14 = h36m[..., idx, :]
-    mid_hip = 0.5 * (h36m[..., [H36M17.index("l_hip")], :] + h36m[..., [H36M17.index("r_hip")], :])
-    return np.concatenate([shelf14, mid_hip], axis=-2)
 

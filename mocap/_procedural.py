@@ -48,7 +48,7 @@ _ANKLE_HEIGHT = 0.07  # ankle centre above the floor at rest, metres
 def _table() -> dict[str, dict[str, tuple]]:
     limbs = {f"r_{j}": ("node", f"r_{j}_joint") for j in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")}
     h36m = {**limbs, "mid_hip": ("node", "pelvis"), "spine": ("node", "spine"), "thorax": ("node", "thorax"),
-            "neck": ("node", "neck"), "head": ("node", "head_top")}
+            "neck_nose": ("node", "neck"), "head": ("node", "head_top")}
     body25 = {
         **limbs, "mid_hip": ("mid", "l_hip_joint", "r_hip_joint"),
         "neck": ("mid", "l_shoulder_joint", "r_shoulder_joint"),

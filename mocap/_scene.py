@@ -20,12 +20,11 @@ import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
 import geometry
-from geometry import BODY25, Camera
+from geometry import BODY25, H36M17, Camera
 
 from ._clips import Clip, list_clips, load_clip
 from ._detections import Detections
 from ._detector import DetectorConfig, DetectorEvents, _numpy_rng, detect_with_events
-from ._motion import h36m17_to_shelf15
 from ._procedural import procedural_clip
 
 __all__ = [
@@ -71,7 +70,7 @@ class Scene(NamedTuple):
     """Ground-truth BODY25 joints, metres, world z up."""
     shelf15: Float[np.ndarray, "frames people 15 3"]
     """Ground truth in the Shelf evaluation joint set, from the H36M17 joints like the clips'
-    (:func:`~mocap.h36m17_to_shelf15`: head bottom = H36M neck, head top = H36M head), so it does
+    (``geometry.to_shelf15`` with the ``"h36m"`` rule: head bottom = H36M neck/nose, head top = H36M head), so it does
     not share the BODY25 head geometry the detections come from."""
     h36m17: Float[np.ndarray, "frames people 17 3"]
     body25_pixels: Float[np.ndarray, "frames views people 25 2"]
@@ -262,7 +261,7 @@ def compose_scene(
         _numpy_rng(placement_key), groups, num_frames, area, min_separation, max_attempts=max_attempts
     )
     detections, events = detect_with_events(detector_key, rig, body25, detector)
-    shelf15 = h36m17_to_shelf15(h36m17)
+    shelf15 = np.asarray(geometry.to_shelf15(h36m17, H36M17))
     shelf15_pixels = np.asarray(geometry.project_to_views(rig, shelf15)).transpose(1, 0, 2, 3, 4)
     return Scene(
         rig=rig, body25=body25, shelf15=shelf15, h36m17=h36m17, body25_pixels=events.geometry.pixels,

@@ -157,13 +157,25 @@ def test_voxelpose_and_mvpose_rules_match_their_mm_code(rule, kwargs):
 
 def test_rules_differ_where_they_should():
     coco = random_people(np.random.default_rng(6), COCO17, 3)
-    heads = {rule: np.asarray(to_shelf15(coco, COCO17, rule))[..., 12:14, :] for rule in HEAD_RULES}
-    for a in HEAD_RULES:
-        for b in HEAD_RULES:
+    face_rules = [rule for rule in HEAD_RULES if rule != "h36m"]  # "h36m" needs H36M's head joints
+    heads = {rule: np.asarray(to_shelf15(coco, COCO17, rule))[..., 12:14, :] for rule in face_rules}
+    for a in face_rules:
+        for b in face_rules:
             if a < b:
                 assert np.abs(heads[a] - heads[b]).max() > 1e-3, (a, b)
-    others = [np.asarray(to_shelf15(coco, COCO17, rule))[..., [*range(12), 14], :] for rule in HEAD_RULES]
+    others = [np.asarray(to_shelf15(coco, COCO17, rule))[..., [*range(12), 14], :] for rule in face_rules]
     assert all(np.array_equal(others[0], o) for o in others)
+
+
+def test_h36m17_source_takes_neck_nose_and_head():
+    h36m = random_people(np.random.default_rng(8), H36M17, 2)
+    shelf15 = np.asarray(to_shelf15(h36m, H36M17))
+    assert_allclose(shelf15[..., 12, :], h36m[..., H36M17.index("neck_nose"), :])
+    assert_allclose(shelf15[..., 13, :], h36m[..., H36M17.index("head"), :])
+    assert_allclose(shelf15[..., 14, :], (h36m[..., 2, :] + h36m[..., 3, :]) / 2)
+    assert_allclose(shelf15[..., 6, :], h36m[..., H36M17.index("r_wrist"), :])
+    with pytest.raises(KeyError, match="ear"):
+        to_shelf15(h36m, H36M17, "4da")
 
 
 def test_shelf14_and_shelf15_sources():

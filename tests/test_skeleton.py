@@ -34,7 +34,7 @@ def test_documented_orders():
     assert list(SHELF15.joints) == list(SHELF14.joints) + ["mid_hip"]
     assert list(H36M17.parents) == H36M17_PARENTS
     assert list(SMPL24.parents) == SMPL24_PARENTS
-    assert H36M17.joints[:4] == ("mid_hip", "r_knee", "r_hip", "l_hip") and H36M17.joints[16] == "neck"
+    assert H36M17.joints[:4] == ("mid_hip", "r_knee", "r_hip", "l_hip") and H36M17.joints[16] == "neck_nose"
     assert SMPL24.joints[15] == "head" and SMPL24.joints[22:] == ("l_hand", "r_hand")
 
 

@@ -1,0 +1,211 @@
+"""The Joint Cloud (JCSAT paper Sec. 3.1, Algorithm 1): every same-type 2D pair, every view pair, triangulated.
+
+For a frame with ``V`` views, ``P = V (V - 1) / 2`` unordered view pairs (``v' < v''``, in
+:func:`view_pairs` order), ``J`` joint types and at most ``C`` candidates per view and joint type
+(the padding of :func:`mocap.pad_detections`), the cloud is a dense grid
+
+    ``(P, J, C, C)``: view pair p, joint type j, candidate a in view ``pairs[p, 0]``,
+    candidate b in view ``pairs[p, 1]``,
+
+so the provenance of every 3D candidate is its grid position plus the per-candidate fields of
+:class:`JointCloud` (both scores, the two reprojection errors, the distance between the two
+back-projected rays). Padded or filtered entries are kept in the grid with ``valid = False``
+(their point is 0). Identity is deliberately ignored: a pair of detections of two different people
+yields a (usually filtered, sometimes not) spurious candidate, as in the paper.
+
+The filters are those of the official code (``jcsat_reference.md`` section 3): both detection
+scores above ``min_score`` and the two rays closer than ``max_ray_distance`` metres; in addition the
+point must be in front of both cameras and the two-view DLT well posed (:func:`geometry.triangulate_point`).
+The official code triangulates with a two-view Gauss-Newton; this module uses the two-view DLT of
+:mod:`geometry` on undistorted pixels (identical to ``cv2.triangulatePoints``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+import geometry
+from geometry import Camera
+
+__all__ = [
+    "JointCloudConfig",
+    "JointCloud",
+    "view_pairs",
+    "triangulate_candidate_pair",
+    "joint_cloud_frame",
+    "build_joint_cloud",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class JointCloudConfig:
+    """Filters of the Joint Cloud (the official JCSAT code's values)."""
+
+    min_score: float = 0.2
+    """A 2D candidate is used only if its detector score is strictly above this."""
+    max_ray_distance: float = 0.1
+    """Metres: the two back-projected rays must pass closer than this to each other."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_score < 1.0:
+            raise ValueError(f"min_score must be in [0, 1), got {self.min_score}")
+        if not self.max_ray_distance > 0.0:
+            raise ValueError(f"max_ray_distance must be positive (metres), got {self.max_ray_distance}")
+
+
+class JointCloud(NamedTuple):
+    """3D candidates on the grid ``(*frames, pairs, joints, C, C)`` (see the module docstring)."""
+
+    point: Float[Array, "*f P J C C 3"]
+    """Triangulated position, metres, world frame; 0 where not ``valid``."""
+    valid: Bool[Array, "*f P J C C"]
+    """Both candidates exist and pass the score filter, the rays pass the distance filter, the point
+    lies in front of both cameras and the DLT is well posed."""
+    score: Float[Array, "*f P J C C 2"]
+    """Detector scores of the two 2D candidates (first view, second view of the pair)."""
+    reprojection_error: Float[Array, "*f P J C C 2"]
+    """Pixels (undistorted image) between each 2D candidate and the reprojected point."""
+    ray_distance: Float[Array, "*f P J C C"]
+    """Metres: shortest distance between the two back-projected rays (lines through the camera centres)."""
+
+    @property
+    def num_candidates(self) -> int:
+        return self.point.shape[-3]
+
+
+def view_pairs(num_views: int) -> Int[np.ndarray, "P 2"]:
+    """All unordered view pairs ``(v', v'')`` with ``v' < v''``, in lexicographic order (10 for 5 views)."""
+    if num_views < 2:
+        raise ValueError(f"a Joint Cloud needs at least two views, got {num_views}")
+    return np.array(list(itertools.combinations(range(num_views), 2)), dtype=np.int32)
+
+
+class _Candidate(NamedTuple):
+    point: Float[Array, "3"]
+    well_posed: Bool[Array, ""]
+    reprojection_error: Float[Array, "2"]
+    ray_distance: Float[Array, ""]
+    in_front: Bool[Array, ""]
+
+
+def triangulate_candidate_pair(
+    projections: Float[Array, "2 3 4"],
+    centres: Float[Array, "2 3"],
+    pixels: Float[Array, "2 2"],
+    rays: Float[Array, "2 3"],
+) -> _Candidate:
+    """ONE 3D candidate from two undistorted pixel observations in two cameras.
+
+    Args:
+        projections: ``K [R | t]`` of the two cameras (world metres to pixels).
+        centres: camera centres, metres.
+        pixels: undistorted pixels of the two 2D candidates.
+        rays: world directions (any length) of the back-projected rays through those pixels.
+
+    Returns the point (metres), the DLT validity, both reprojection errors (pixels), the ray
+    distance (metres) and whether the point has positive depth in both cameras.
+    """
+    tri = geometry.triangulate_point(projections, pixels, jnp.ones(2, pixels.dtype))
+    normal = jnp.cross(rays[0], rays[1])
+    baseline = centres[1] - centres[0]
+    normal_sq = jnp.sum(normal * normal)
+    # Parallel rays: the distance between the lines is the baseline's component normal to them.
+    along = rays[0] / jnp.sqrt(jnp.sum(rays[0] * rays[0]))
+    parallel_distance = jnp.sqrt(jnp.sum(jnp.cross(baseline, along) ** 2))
+    skew = normal_sq > 1e-12 * jnp.sum(rays[0] * rays[0]) * jnp.sum(rays[1] * rays[1])
+    skew_distance = jnp.abs(jnp.sum(baseline * normal)) / jnp.sqrt(jnp.where(skew, normal_sq, 1.0))
+    distance = jnp.where(skew, skew_distance, parallel_distance)
+    homogeneous = jnp.concatenate([tri.point, jnp.ones(1, tri.point.dtype)])
+    depths = jnp.sum(projections[:, 2, :] * homogeneous[None, :], axis=-1)
+    return _Candidate(tri.point, tri.valid, tri.reprojection_error, distance, jnp.all(depths > 0))
+
+
+def joint_cloud_frame(
+    rig: Camera,
+    xy: Float[Array, "V J C 2"],
+    score: Float[Array, "V J C"],
+    mask: Bool[Array, "V J C"],
+    config: JointCloudConfig = JointCloudConfig(),
+) -> JointCloud:
+    """The Joint Cloud of ONE frame from padded detections (pixels as observed, i.e. distorted).
+
+    Jittable; vmap over frames (or use :func:`build_joint_cloud`). ``config`` is static.
+    """
+    num_views = xy.shape[0]
+    pairs = view_pairs(num_views)
+    undistorted = jax.vmap(partial(geometry.undistort_points, output="pixels"))(rig, xy)  # (V, J, C, 2)
+    normalised = jax.vmap(geometry.undistort_points)(rig, xy)
+    homogeneous = jnp.concatenate([normalised, jnp.ones_like(normalised[..., :1])], axis=-1)
+    # World ray direction R^T x_norm, as a broadcast-sum (tiny matmuls are slow under vmap).
+    rays = jnp.sum(rig.R[:, None, None, :, :] * homogeneous[..., :, None], axis=-2)  # (V, J, C, 3)
+    projections = geometry.projection_matrix(rig)  # (V, 3, 4)
+    centres = geometry.camera_center(rig)  # (V, 3)
+    usable = mask & (score > config.min_score)
+
+    first, second = pairs[:, 0], pairs[:, 1]
+    pair_projections = jnp.stack([projections[first], projections[second]], axis=1)  # (P, 2, 3, 4)
+    pair_centres = jnp.stack([centres[first], centres[second]], axis=1)  # (P, 2, 3)
+
+    def one(proj, cent, px_a, px_b, ray_a, ray_b):
+        return triangulate_candidate_pair(proj, cent, jnp.stack([px_a, px_b]), jnp.stack([ray_a, ray_b]))
+
+    over_b = jax.vmap(one, in_axes=(None, None, None, 0, None, 0))
+    over_ab = jax.vmap(over_b, in_axes=(None, None, 0, None, 0, None))
+    over_joints = jax.vmap(over_ab, in_axes=(None, None, 0, 0, 0, 0))
+    over_pairs = jax.vmap(over_joints, in_axes=(0, 0, 0, 0, 0, 0))
+    cand = over_pairs(
+        pair_projections, pair_centres, undistorted[first], undistorted[second], rays[first], rays[second]
+    )  # leaves (P, J, C, C, ...)
+    both = usable[first][..., :, None] & usable[second][..., None, :]  # (P, J, C, C)
+    valid = both & cand.well_posed & cand.in_front & (cand.ray_distance < config.max_ray_distance)
+    pair_score = jnp.stack(
+        jnp.broadcast_arrays(score[first][..., :, None], score[second][..., None, :]), axis=-1
+    )
+    zero = jnp.zeros((), xy.dtype)
+    return JointCloud(
+        point=jnp.where(valid[..., None], cand.point, zero),
+        valid=valid,
+        score=jnp.where(both[..., None], pair_score, zero),
+        reprojection_error=jnp.where(both[..., None], cand.reprojection_error, zero),
+        ray_distance=jnp.where(both, cand.ray_distance, zero),
+    )
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _joint_cloud_frames(rig, xy, score, mask, config):
+    return jax.vmap(joint_cloud_frame, in_axes=(None, 0, 0, 0, None))(rig, xy, score, mask, config)
+
+
+def build_joint_cloud(
+    rig: Camera,
+    xy: Float[ArrayLike, "F V J C 2"],
+    score: Float[ArrayLike, "F V J C"],
+    mask: Bool[ArrayLike, "F V J C"],
+    config: JointCloudConfig = JointCloudConfig(),
+) -> JointCloud:
+    """The Joint Cloud of every frame (jitted; leaves ``(F, P, J, C, C, ...)``).
+
+    Takes the fields of :class:`mocap.PaddedDetections` (pixels as observed). Raises ``ValueError``
+    on inconsistent shapes or NaN in a real candidate.
+    """
+    xy, score, mask = jnp.asarray(xy), jnp.asarray(score), jnp.asarray(mask, bool)
+    if xy.ndim != 5 or xy.shape[-1] != 2:
+        raise ValueError(f"xy must have shape (frames, views, joints, candidates, 2), got {xy.shape}")
+    if score.shape != xy.shape[:-1] or mask.shape != xy.shape[:-1]:
+        raise ValueError(f"score {score.shape} and mask {mask.shape} must have shape {xy.shape[:-1]}")
+    if rig.K.ndim != 3 or rig.K.shape[0] != xy.shape[1]:
+        raise ValueError(f"rig must be a stacked Camera with {xy.shape[1]} views, got K of shape {rig.K.shape}")
+    real = np.asarray(mask)
+    if not (np.isfinite(np.asarray(xy))[real].all() and np.isfinite(np.asarray(score))[real].all()):
+        raise ValueError("xy or score contains NaN or inf at a real (unmasked) candidate")
+    dtype = xy.dtype if jnp.issubdtype(xy.dtype, jnp.floating) else jnp.float32
+    rig = jax.tree.map(lambda leaf: jnp.asarray(leaf, dtype), rig)
+    return _joint_cloud_frames(rig, xy.astype(dtype), score.astype(dtype), mask, config)
