@@ -67,7 +67,7 @@ class Triangulation(NamedTuple):
     weight 0 and for invalid points."""
     residual: Float[Array, "*batch"]
     """Algebraic residual ``|A v|`` with ``|v| = 1``: the smallest singular value of the weighted DLT
-    matrix (0 for noise-free data)."""
+    matrix (0 for noise-free data, and 0 where ``valid`` is False)."""
     conditioning: Float[Array, "*batch"]
     """Scale-free measure of how well the point is determined, ``e3 / (e1 e2)`` of the elementary
     symmetric functions of the eigenvalues of ``A^T A``; between ``lambda_3 / (9 lambda_1)`` and
@@ -80,7 +80,8 @@ Scalar = Float[Array, ""]
 """One number per point. The kernels below keep vectors and 4x4 matrices as Python lists of scalars:
 under ``vmap`` each scalar becomes one contiguous ``(batch,)`` array and XLA emits plain element-wise
 loops. Small arrays with stacks and short-axis reductions get the batch axis moved to the front
-instead and ran 5x slower (40 ms instead of 7 ms for 100k two-view points, float64, 2 CPU cores)."""
+instead and ran 2-4x slower (20-40 ms instead of 7-10 ms for 100k two-view points, float64, 2 busy
+CPU cores)."""
 Vector4 = list[Scalar]
 Matrix4 = list[list[Scalar]]
 
@@ -90,6 +91,8 @@ class _DltProblem(NamedTuple):
 
     rows: list[Vector4]
     """The ``2 views`` weighted DLT rows of ``A``; zero for masked views."""
+    row_scales: list[Scalar]
+    """The factor each raw row ``x P[2] - P[0]`` was multiplied by (its weight, over its norm if normalised)."""
     normal: Matrix4
     """``A^T A`` divided by its trace (scale-free, and keeps its adjugate O(1) even in float32)."""
     adjugate: Matrix4
@@ -141,7 +144,7 @@ def _dlt_problem(
     weights: Float[Array, "views"],
     normalize_rows: bool,
 ) -> _DltProblem:
-    rows = []
+    rows, row_scales = [], []
     for view in range(projections.shape[0]):
         used = weights[view] > 0
         for axis in range(2):
@@ -153,12 +156,13 @@ def _dlt_problem(
                 norm = jnp.sqrt(_dot(row, row))
                 scale = scale / jnp.where(norm > 0, norm, 1)
             rows.append([scale * entry for entry in row])
+            row_scales.append(scale)
     upper = {(i, j): sum(row[i] * row[j] for row in rows) for i in range(4) for j in range(i, 4)}
     trace = upper[0, 0] + upper[1, 1] + upper[2, 2] + upper[3, 3]
     safe_trace = jnp.where(trace > 0, trace, 1)
     normal = [[upper[min(i, j), max(i, j)] / safe_trace for j in range(4)] for i in range(4)]
     num_views = jnp.sum((weights > 0).astype(jnp.int32))
-    return _DltProblem(rows, normal, _adjugate_4x4(normal), num_views)
+    return _DltProblem(rows, row_scales, normal, _adjugate_4x4(normal), num_views)
 
 
 @jax.custom_jvp
@@ -223,23 +227,34 @@ def _conditioning(problem: _DltProblem) -> Scalar:
     return jnp.where(denominator > 0, e3 / jnp.where(denominator > 0, denominator, 1), 0)
 
 
-def _reprojection_errors(
+def _reprojection(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "views 2"],
+    problem: _DltProblem,
     used: Bool[Array, "views"],
+    v: Vector4,
     point: list[Scalar],
-) -> Float[Array, "views"]:
+) -> tuple[Float[Array, "views"], Scalar]:
+    """Per-view reprojection errors (pixels) and the algebraic residual ``|A v|``, 0 where not ``used``.
+
+    Each DLT row times v is ``-row_scale * v_3 * depth_k * (reprojected - observed)`` along its axis,
+    so the residual comes from the reprojection offsets (cheaper than ``A v``: the rows need not be
+    kept, and no precision is lost as with ``v^T M v``)."""
     homogeneous = point + [jnp.ones_like(point[0])]
-    errors = []
+    errors, residual_squared = [], 0
     for view in range(projections.shape[0]):
         projected = [_dot([projections[view, r, j] for j in range(4)], homogeneous) for r in range(3)]
         depth = jnp.where(projected[2] != 0, projected[2], 1)
-        dx = projected[0] / depth - points[view, 0]
-        dy = projected[1] / depth - points[view, 1]
-        squared = jnp.where(used[view], dx * dx + dy * dy, 1)
+        offsets = [projected[axis] / depth - points[view, axis] for axis in range(2)]
         # Double where: masked views may hold NaN, and sqrt has an infinite gradient at 0.
+        squared = jnp.where(used[view], offsets[0] * offsets[0] + offsets[1] * offsets[1], 1)
         errors.append(jnp.where(used[view], jnp.sqrt(squared), 0))
-    return jnp.stack(errors)
+        for axis in range(2):
+            algebraic = problem.row_scales[2 * view + axis] * v[3] * depth * offsets[axis]
+            residual_squared = residual_squared + jnp.where(used[view], algebraic * algebraic, 0)
+    positive = residual_squared > 0
+    residual = jnp.where(positive, jnp.sqrt(jnp.where(positive, residual_squared, 1)), 0)
+    return jnp.stack(errors), residual
 
 
 def triangulate_point(
@@ -267,19 +282,17 @@ def triangulate_point(
     """
     problem = _dlt_problem(projections, points, weights, normalize_rows)
     v = _KERNELS[method](problem)
-    # The residual comes from the rows, not from v^T M v: forming M squares the condition number.
-    residual = jnp.sqrt(sum(_dot(row, v) ** 2 for row in problem.rows))
     conditioning = _conditioning(problem)
     finite = jnp.abs(v[3]) * max_distance > jnp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     well_posed = conditioning > _CONDITIONING_FLOOR * jnp.finfo(conditioning.dtype).eps
     valid = (problem.num_views >= 2) & finite & well_posed
     w = jnp.where(valid, v[3], 1)
     point = [jnp.where(valid, v[i] / w, 0) for i in range(3)]
-    reprojection_error = _reprojection_errors(projections, points, valid & (weights > 0), point)
+    reprojection_error, residual = _reprojection(projections, points, problem, valid & (weights > 0), v, point)
     return Triangulation(jnp.stack(point), valid, reprojection_error, residual, conditioning, problem.num_views)
 
 
-def _is_traced(*arrays: ArrayLike) -> bool:
+def _is_traced(*arrays: ArrayLike | None) -> bool:
     return any(isinstance(array, jax.core.Tracer) for array in arrays)
 
 
@@ -292,8 +305,26 @@ def _check_finite(name: str, array: ArrayLike, where: ArrayLike | None = None) -
         raise ValueError(f"{name} contains NaN or inf (first at index {index})")
 
 
-def _check_inputs(projections: Array, points: Array, weights: Array, method: str) -> None:
-    """Shape and dtype checks always (shapes are static under jit); value checks on concrete arrays."""
+@jax.jit
+def _has_bad_values(
+    projections: Float[Array, "views 3 4"],
+    points: Float[Array, "*batch views 2"],
+    weights: Float[Array, "*batch views"] | None,
+) -> Bool[Array, ""]:
+    if weights is None:
+        return ~jnp.all(jnp.isfinite(projections)) | ~jnp.all(jnp.isfinite(points))
+    weighted = weights[..., None] > 0
+    return (
+        ~jnp.all(jnp.isfinite(projections))
+        | ~jnp.all(jnp.isfinite(weights) & (weights >= 0))
+        | jnp.any(weighted & ~jnp.isfinite(points))
+    )
+
+
+def _check_inputs(projections: Array, points: Array, weights: ArrayLike | None, method: str) -> Array | None:
+    """Checks shapes and dtypes always (shapes are static under jit) and values when concrete (one
+    fused pass on the device; the host search for the culprit runs only on failure). Returns the
+    weights as an array (None stays None: the kernel then uses ones)."""
     if method not in _KERNELS:
         raise ValueError(f"method must be one of {sorted(_KERNELS)}, got {method!r}")
     if projections.ndim != 3 or projections.shape[1:] != (3, 4):
@@ -301,34 +332,47 @@ def _check_inputs(projections: Array, points: Array, weights: Array, method: str
     views = projections.shape[0]
     if points.ndim < 2 or points.shape[-2:] != (views, 2):
         raise ValueError(f"points must have shape (*batch, {views}, 2) for {views} views, got {points.shape}")
-    if weights.shape != points.shape[:-1]:
-        raise ValueError(f"weights must have shape {points.shape[:-1]} (points without the last axis), got {weights.shape}")
+    if weights is not None:
+        weights = jnp.asarray(weights)
+        if weights.shape != points.shape[:-1]:
+            raise ValueError(f"weights must have shape {points.shape[:-1]} (points without the last axis), got {weights.shape}")
     for name, array in (("projections", projections), ("points", points), ("weights", weights)):
-        if not jnp.issubdtype(array.dtype, jnp.floating):
+        if array is not None and not jnp.issubdtype(array.dtype, jnp.floating):
             raise ValueError(f"{name} must be a floating-point array, got dtype {array.dtype}")
-    if _is_traced(projections, points, weights):
-        return
+    if _is_traced(projections, points, weights) or not bool(_has_bad_values(projections, points, weights)):
+        return weights
+    weights_or_ones = np.ones(points.shape[:-1]) if weights is None else np.asarray(weights)
     _check_finite("projections", projections)
-    _check_finite("weights", weights)
-    if bool(np.any(np.asarray(weights) < 0)):
+    _check_finite("weights", weights_or_ones)
+    if bool(np.any(weights_or_ones < 0)):
         raise ValueError("weights must be non-negative (0 masks a view)")
-    _check_finite("points (where the weight is positive)", points, np.asarray(weights)[..., None] > 0)
+    _check_finite("points (where the weight is positive)", points, weights_or_ones[..., None] > 0)
+    raise AssertionError("unreachable: _has_bad_values and the host checks disagree")
 
 
 @partial(jax.jit, static_argnames=("method", "normalize_rows", "max_distance"))
 def _triangulate_flat(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "n views 2"],
-    weights: Float[Array, "n views"],
+    weights: Float[Array, "n views"] | None,
     method: Method,
     normalize_rows: bool,
     max_distance: float,
 ) -> Triangulation:
+    if weights is None:
+        weights = jnp.ones(points.shape[:-1], points.dtype)
     kernel = partial(triangulate_point, method=method, normalize_rows=normalize_rows, max_distance=max_distance)
     return jax.vmap(kernel, in_axes=(None, 0, 0))(projections, points, weights)
 
 
+def _flatten(array: Array, tail: tuple[int, ...]) -> Array:
+    # Eager reshapes are dispatched ops: skip them when the batch is already one axis.
+    return array if array.ndim == len(tail) + 1 else array.reshape((-1,) + tail)
+
+
 def _unflatten(result: Triangulation, batch: tuple[int, ...]) -> Triangulation:
+    if len(batch) == 1:
+        return result
     return jax.tree.map(lambda leaf: leaf.reshape(batch + leaf.shape[1:]), result)
 
 
@@ -365,11 +409,10 @@ def triangulate(
             called on traced values inside ``jax.jit``; shape checks always run).
     """
     projections, points = jnp.asarray(projections), jnp.asarray(points)
-    weights = jnp.ones(points.shape[:-1], points.dtype) if weights is None else jnp.asarray(weights)
-    _check_inputs(projections, points, weights, method)
+    weights = _check_inputs(projections, points, weights, method)
     views = projections.shape[0]
     flat = _triangulate_flat(
-        projections, points.reshape(-1, views, 2), weights.reshape(-1, views), method, normalize_rows, float(max_distance)
+        projections, _flatten(points, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalize_rows, float(max_distance)
     )
     return _unflatten(flat, points.shape[:-2])
 
@@ -378,7 +421,7 @@ def triangulate(
 def _triangulate_pixels_flat(
     rig: Camera,
     pixels: Float[Array, "n views 2"],
-    weights: Float[Array, "n views"],
+    weights: Float[Array, "n views"] | None,
     method: Method,
     normalize_rows: bool,
     max_distance: float,
@@ -407,10 +450,9 @@ def triangulate_pixels(
     if rig.K.ndim != 3:
         raise ValueError(f"rig must be a stacked Camera with leaves (views, ...), got K of shape {rig.K.shape}")
     pixels = jnp.asarray(pixels)
-    weights = jnp.ones(pixels.shape[:-1], pixels.dtype) if weights is None else jnp.asarray(weights)
-    _check_inputs(projection_matrix(rig), pixels, weights, method)
+    weights = _check_inputs(projection_matrix(rig), pixels, weights, method)
     views = rig.K.shape[0]
     flat = _triangulate_pixels_flat(
-        rig, pixels.reshape(-1, views, 2), weights.reshape(-1, views), method, normalize_rows, float(max_distance)
+        rig, _flatten(pixels, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalize_rows, float(max_distance)
     )
     return _unflatten(flat, pixels.shape[:-2])

@@ -2,6 +2,8 @@
 
 from ._detections import *  # noqa: F403
 from ._shelf_campus import *  # noqa: F403
+from ._predictions import *  # noqa: F403
+from ._evaluation import *  # noqa: F403
 from ._motion import *  # noqa: F403
 from ._asf_amc import *  # noqa: F403
 from ._bvh import *  # noqa: F403

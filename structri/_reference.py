@@ -84,8 +84,8 @@ def constrained_reference(
 @jax.jit(static_argnames=("skeleton", "max_steps"))
 def _reference(points_2d, P, lengths, weights, starts, *, skeleton, max_steps):
     tree = _tree(skeleton)
-    D, m = _quadratic_form(points_2d, P, weights)
-    A, beta = _reduced_from_quadratic(tree, D, m)
+    D, m = _quadratic_form(points_2d[..., None], P[..., None], weights[..., None])  # frames-last, one frame
+    A, beta = _reduced_from_quadratic(tree, D[..., 0], m[..., 0])
     scale = jnp.max(jnp.linalg.eigvalsh(A))
     A_s, beta_s = A / scale, beta / scale  # unit-free objective for BFGS tolerances
 
@@ -118,5 +118,5 @@ def _reference(points_2d, P, lengths, weights, starts, *, skeleton, max_steps):
     hessian = A_s + 2.0 * jnp.diag(jnp.repeat(lam, 3))
     min_eig = jnp.min(jnp.linalg.eigvalsh(Z.T @ hessian @ Z))
     certified = (residual < 1e-8) & (min_eig > 0) & (sol.result == optx.RESULTS.successful)
-    pose = _pose_from_bones(tree, D, m, b)
+    pose = _pose_from_bones(tree, D, m, b[..., None])[..., 0]
     return ReferenceResult(pose, b, lam * scale, reduced_objective(A, beta, b), residual, min_eig, certified)

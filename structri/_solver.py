@@ -11,9 +11,14 @@ Hessian expressed in tree coordinates, so its inverse is the bone block of ``G^-
 ``A^-1 = C^T blockdiag(D_i^-1) C`` with C the joint-by-bone incidence matrix (+1 at the child, -1 at
 the parent). Applying ``A^-1`` is then a scatter to joints, seventeen 3x3 products and a gather of bone
 differences. SCA's accumulated first-order update ``T^i = T^(i-1) - 2 T^(i-1) Lambda_i T^(i-1)`` is
-applied matrix-free by recursion (``2^i`` applications of ``A^-1`` at step i), which for the paper's
-``n_steps <= 9`` costs less than the dense ``(3n)^3`` products. ``A`` and ``beta`` themselves are built
-only where a method needs them (the exact-SCA variant, the Lagrangian baseline, the objective).
+applied matrix-free (``2^(i-1)`` applications of ``A^-1`` at step i, evaluated in a loop whose traced
+graph is linear in the number of steps), which for the paper's ``n_steps <= 9`` costs less than
+carrying the dense ``(3n)^3`` products. ``A`` and ``beta`` themselves are built only where a method
+needs them (the exact-SCA variant, the Lagrangian baseline, the objective).
+
+The batched path is frames-last: frames are cut into chunks, and within a chunk every array carries
+the frames on its last axis, so the 3x3 inverses (adjugates) and the bones x bones multiplier systems
+(unrolled elimination) are element-wise arithmetic without LAPACK calls.
 
 Units: pixels for 2D points, any length unit for 3D (the project uses metres); ``bone_lengths`` in that
 unit. A is singular iff some joint's rays are all parallel (fewer than two usable views), which the
@@ -85,8 +90,9 @@ class _Tree(NamedTuple):
     root: int
     parent: np.ndarray  # (n,) parent joint of each bone
     child: np.ndarray  # (n,) child joint of each bone
-    incidence: np.ndarray  # (J, n): +1 at the child, -1 at the parent
     path: np.ndarray  # (J, n): 1 where bone k lies on the path root -> joint j
+    joint_bones: np.ndarray  # (J, deg): bones touching joint j, padded with n (no bone)
+    joint_signs: np.ndarray  # (J, deg): +1 where j is the bone's child, -1 its parent, 0 padding
 
 
 @functools.cache
@@ -97,71 +103,151 @@ def _tree(skeleton: Skeleton) -> _Tree:
     num_joints, bones = skeleton.num_joints, skeleton.bones
     if len(bones) != num_joints - 1 or len(order) != num_joints:
         raise ValueError(f"{skeleton.name}: parents do not form a tree")
+    n = len(bones)
     parent = np.array([p for p, _ in bones])
     child = np.array([c for _, c in bones])
-    incidence = np.zeros((num_joints, len(bones)))
-    incidence[child, np.arange(len(bones))] = 1.0
-    incidence[parent, np.arange(len(bones))] = -1.0
+    touching = [[(k, 1.0) for k in range(n) if child[k] == j] + [(k, -1.0) for k in range(n) if parent[k] == j]
+                for j in range(num_joints)]
+    degree = max(len(t) for t in touching)
+    joint_bones = np.full((num_joints, degree), n)
+    joint_signs = np.zeros((num_joints, degree))
+    for j, t in enumerate(touching):
+        joint_bones[j, :len(t)] = [k for k, _ in t]
+        joint_signs[j, :len(t)] = [sign for _, sign in t]
     bone_of_child = {c: k for k, (_, c) in enumerate(bones)}
-    path = np.zeros((num_joints, len(bones)))
+    path = np.zeros((num_joints, n))
     for j in order:
         if j != skeleton.root:
             p = skeleton.parents[j]
             path[j] = path[p]
             path[j, bone_of_child[j]] = 1.0
-    return _Tree(skeleton.root, parent, child, incidence, path)
+    return _Tree(skeleton.root, parent, child, path, joint_bones, joint_signs)
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-frame kernels.
+# Frames-last kernels.
+#
+# Every array below carries the frames of one chunk on its LAST axis (``... F``), so the 3x3 and
+# bones x bones algebra is element-wise arithmetic on contiguous (F,) rows that XLA fuses into plain
+# loops. Batched small ``linalg.solve``/``@`` would lower to LAPACK custom calls or batched
+# dot_generals that loop over frames on CPU (15x slower end to end).
 
 
 def _quadratic_form(
-    points_2d: Float[Array, "views joints 2"],
-    projections: Float[Array, "views 3 4"],
-    weights: Float[Array, "views joints"],
-) -> tuple[Float[Array, "joints 3 3"], Float[Array, "joints 3"]]:
+    points_2d: Float[Array, "views joints 2 F"],
+    projections: Float[Array, "views 3 4 #F"],
+    weights: Float[Array, "views joints F"],
+) -> tuple[Float[Array, "joints 3 3 F"], Float[Array, "joints 3 F"]]:
     """``D_i = 2 sum_k P3^T M_ik P3`` and ``m_i = -2 sum_k P3^T M_ik t_k`` with ``M = w S^T S``."""
     # S P_k = [P0 - u P2; P1 - v P2]: each row r gives the residual r . [x; 1].
-    rows = projections[:, None, :2, :] - points_2d[..., None] * projections[:, None, 2:3, :]  # (V,J,2,4)
-    w = 2.0 * weights[..., None, None]
-    D = jnp.sum(w[..., None] * rows[..., :3, None] * rows[..., None, :3], axis=(0, 2))
-    m = -jnp.sum(w * rows[..., :3] * rows[..., 3:], axis=(0, 2))
+    rows = projections[:, None, :2] - points_2d[:, :, :, None] * projections[:, None, 2:3]  # (V,J,2,4,F)
+    w = 2.0 * weights[:, :, None, None]
+    lin = rows[:, :, :, :3]
+    D = jnp.sum(w[:, :, :, :, None] * lin[:, :, :, :, None] * lin[:, :, :, None], axis=(0, 2))
+    m = -jnp.sum(w * lin * rows[:, :, :, 3:], axis=(0, 2))
     return D, m
 
 
-def _inverse_3x3(D: Float[Array, "*n 3 3"]) -> tuple[Float[Array, "*n 3 3"], Float[Array, "*n"]]:
+def _inverse_3x3(D: Float[Array, "*n 3 3 F"]) -> tuple[Float[Array, "*n 3 3 F"], Float[Array, "*n F"]]:
     """Inverse of symmetric PSD 3x3 blocks by the adjugate, and a reciprocal-condition estimate.
 
     ``det / (e2 * trace)`` (e2 the sum of principal 2x2 minors) lies within a factor 9 of
     ``lambda_min / lambda_max``; non-finite or non-positive values give 0."""
-    a, b, c = D[..., 0, 0], D[..., 0, 1], D[..., 0, 2]
-    d, e, f = D[..., 1, 1], D[..., 1, 2], D[..., 2, 2]
+    a, b, c = D[..., 0, 0, :], D[..., 0, 1, :], D[..., 0, 2, :]
+    d, e, f = D[..., 1, 1, :], D[..., 1, 2, :], D[..., 2, 2, :]
     c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
     c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
     det = a * c00 + b * c01 + c * c02
-    adj = jnp.stack([jnp.stack([c00, c01, c02], -1), jnp.stack([c01, c11, c12], -1),
-                     jnp.stack([c02, c12, c22], -1)], -2)
+    adj = jnp.stack([jnp.stack([c00, c01, c02], -2), jnp.stack([c01, c11, c12], -2),
+                     jnp.stack([c02, c12, c22], -2)], -3)
     e2, trace = c00 + c11 + c22, a + d + f
     rcond = det / (e2 * trace)
     rcond = jnp.where(jnp.isfinite(rcond) & (rcond > 0), rcond, 0.0)
-    return adj / det[..., None, None], rcond
+    return adj / det[..., None, None, :], rcond
 
 
-def _matvec3(M: Float[Array, "*n 3 3"], v: Float[Array, "*n 3"]) -> Float[Array, "*n 3"]:
-    return jnp.sum(M * v[..., None, :], axis=-1)
+def _matvec3(M: Float[Array, "*n 3 3 F"], v: Float[Array, "*n 3 F"]) -> Float[Array, "*n 3 F"]:
+    return jnp.sum(M * v[..., None, :, :], axis=-2)
 
 
-def _apply_a_inverse(tree: _Tree, D_inv: Float[Array, "joints 3 3"], v: Float[Array, "bones 3 *cols"]):
-    """``A^-1 v = C^T blockdiag(D_i^-1) C v`` (see the module docstring), ``v`` of shape (n, 3, ...)."""
-    at_joints = jnp.tensordot(jnp.asarray(tree.incidence, v.dtype), v, axes=1)
-    z = jnp.sum(D_inv.reshape(D_inv.shape + (1,) * (v.ndim - 2)) * at_joints[:, None], axis=2)
+def _apply_a_inverse(tree: _Tree, D_inv: Float[Array, "joints 3 3 F"], v: Float[Array, "bones 3 *cols F"]):
+    """``A^-1 v = C^T blockdiag(D_i^-1) C v`` (see the module docstring)."""
+    extra = (1,) * (v.ndim - 3)
+    padded = jnp.concatenate([v, jnp.zeros_like(v[:1])])  # index n = "no bone"
+    signs = jnp.asarray(tree.joint_signs, v.dtype).reshape(tree.joint_signs.shape + (1,) * (v.ndim - 1))
+    at_joints = jnp.sum(signs * padded[tree.joint_bones], axis=1)  # C v, (J, 3, *cols, F)
+    D_inv = D_inv.reshape(D_inv.shape[:3] + extra + D_inv.shape[3:])
+    z = jnp.sum(D_inv * at_joints[:, None], axis=2)
     return z[tree.child] - z[tree.parent]
 
 
-def _pose_from_bones(tree: _Tree, D, m, bones: Float[Array, "bones 3"]) -> Float[Array, "joints 3"]:
+def _apply_sca_operator(tree, D_inv, lambdas: list, v: Float[Array, "bones 3 *cols F"]):
+    """``T^L v`` for SCA's accumulated first-order inverse ``T^l = T^(l-1) - 2 T^(l-1) Lambda_l T^(l-1)``.
+
+    ``T^L`` is a polynomial of degree ``2^L`` in ``A^-1``, and forming it densely costs ``(3n)^3`` per
+    level (slower than the whole matrix-free solve for the paper's N = 3). So ``T^L v`` is evaluated
+    matrix-free, depth first over the binary recursion tree: ``2^L`` applications of ``A^-1`` in a
+    ``fori_loop`` whose body carries one pending partial result per level. The traced graph is
+    O(L), not O(2^L)."""
+    level = len(lambdas)
+    if level == 0:
+        return _apply_a_inverse(tree, D_inv, v)
+    shape = (lambdas[0].shape[0],) + (1,) * (v.ndim - 2) + lambdas[0].shape[1:]
+    scales = [lam.reshape(shape) for lam in lambdas]
+
+    def leaf(index, state):
+        x, pending, _ = state
+        r = _apply_a_inverse(tree, D_inv, x)
+        # Carry up the tree: a 0 bit ends the first call of that level (its input for the second
+        # call is Lambda r); a 1 bit ends the second call (result = first - 2 second).
+        done = jnp.array(False)
+        pending = list(pending)
+        for j in range(level):
+            second_call = (jnp.right_shift(index, j) & 1) == 1
+            first_ends = ~done & ~second_call
+            x = jnp.where(first_ends, scales[j] * r, x)
+            r, pending[j] = (jnp.where(~done & second_call, pending[j] - 2.0 * r, r),
+                             jnp.where(first_ends, r, pending[j]))
+            done = done | first_ends
+        return x, tuple(pending), r
+
+    zeros = jnp.zeros_like(v)
+    _, _, result = jax.lax.fori_loop(0, 2**level, leaf, (v, (zeros,) * level, zeros))
+    return result
+
+
+def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n F"]) -> Float[Array, "n F"]:
+    """Gaussian elimination without pivoting, element-wise over frames, in ``fori_loop``s.
+
+    The multiplier systems are ``B^T T B`` with T a first-order approximation of the SPD ``A^-1``,
+    so they are (nearly) symmetric positive definite and need no pivoting; a singular one yields
+    non-finite multipliers, which the caller reports. (Unrolling the n = 16 elimination instead
+    compiles for seconds.)"""
+    n = system.shape[0]
+    augmented = jnp.concatenate([system, rhs[:, None]], axis=1)  # (n, n + 1, F)
+    below = jnp.arange(n)
+
+    def eliminate(k, aug):
+        pivot_row = jax.lax.dynamic_index_in_dim(aug, k, 0, keepdims=False)
+        column = jax.lax.dynamic_index_in_dim(aug, k, 1, keepdims=False)
+        pivot = jax.lax.dynamic_index_in_dim(pivot_row, k, 0)
+        factor = jnp.where((below > k)[:, None], column / pivot, 0.0)
+        return aug - factor[:, None] * pivot_row[None]
+
+    upper = jax.lax.fori_loop(0, n, eliminate, augmented)
+
+    def substitute(j, x):  # x is zero at the unknowns not yet solved for, k and above
+        k = n - 1 - j
+        row = jax.lax.dynamic_index_in_dim(upper, k, 0, keepdims=False)
+        value = (row[n] - jnp.sum(row[:n] * x, axis=0)) / jax.lax.dynamic_index_in_dim(row, k, 0, keepdims=False)
+        return jax.lax.dynamic_update_index_in_dim(x, value, k, 0)
+
+    return jax.lax.fori_loop(0, n, substitute, jnp.zeros_like(rhs))
+
+
+def _pose_from_bones(tree: _Tree, D, m, bones: Float[Array, "bones 3 F"]) -> Float[Array, "joints 3 F"]:
     """Joints from bones with the optimal root ``x0 = (sum D_i)^-1 (sum m_i - sum D_i r_i(b))``."""
-    relative = jnp.asarray(tree.path, bones.dtype) @ bones
+    relative = jnp.tensordot(jnp.asarray(tree.path, bones.dtype), bones, axes=1)
     S_inv, _ = _inverse_3x3(jnp.sum(D, axis=0))
     rhs = jnp.sum(m, axis=0) - jnp.sum(_matvec3(D, relative), axis=0)
     return _matvec3(S_inv, rhs)[None] + relative
@@ -170,39 +256,33 @@ def _pose_from_bones(tree: _Tree, D, m, bones: Float[Array, "bones 3"]) -> Float
 def _target_sq(bones, lengths, step: int, n_steps: int, schedule: str):
     """Squared target lengths ``L^(i)`` of SCA step i (1-based): the code interpolates lengths,
     the paper (Eq. 16) squared lengths; both reach ``lengths`` at the last step."""
-    real_sq = jnp.sum(bones**2, axis=-1)
+    real_sq = jnp.sum(bones**2, axis=1)
     remaining = n_steps - step
     if schedule == "length":
         return ((remaining * jnp.sqrt(real_sq) + lengths) / (remaining + 1)) ** 2
     return (remaining * real_sq + lengths**2) / (remaining + 1)
 
 
-def _sca_first_order(tree, D_inv, b0, lengths, n_steps: int, schedule: str):
+def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[Array, "bones #F"],
+                     n_steps: int, schedule: str):
     """Algorithm 1 with the code's ``T^(i-1)`` in the multiplier system; returns (b, sum lambda, ok)."""
-    lambdas: list = []
-
-    def apply_T(level: int, v):
-        if level == 0:
-            return _apply_a_inverse(tree, D_inv, v)
-        u = apply_T(level - 1, v)
-        scale = lambdas[level - 1].reshape((-1, 1) + (1,) * (v.ndim - 2))
-        return u - 2.0 * apply_T(level - 1, scale * u)
-
     n = b0.shape[0]
-    b, solvable = b0, jnp.array(True)
+    eye = jnp.eye(n, dtype=b0.dtype)[:, None, :, None]
+    b, lambdas, solvable = b0, [], jnp.array(True)
     for step in range(1, n_steps + 1):
-        rhs = jnp.sum(b**2, axis=-1) - _target_sq(b, lengths, step, n_steps, schedule)
-        columns = b[:, :, None] * jnp.eye(n, dtype=b.dtype)[:, None, :]  # diag(b) D31, (n, 3, n)
-        system = jnp.sum(b[:, :, None] * apply_T(step - 1, columns), axis=1)
-        lam = jnp.linalg.solve(system, rhs) / 4.0
-        solvable &= jnp.all(jnp.isfinite(lam))
-        b = b - 2.0 * apply_T(step - 1, lam[:, None] * b)
+        rhs = jnp.sum(b**2, axis=1) - _target_sq(b, lengths, step, n_steps, schedule)
+        columns = b[:, :, None] * eye  # diag(b) D31, (n, 3, n, F)
+        U = _apply_sca_operator(tree, D_inv, lambdas, columns)
+        system = jnp.sum(b[:, :, None] * U, axis=1)
+        lam = _solve_symmetric(0.5 * (system + jnp.swapaxes(system, 0, 1)), rhs) / 4.0
+        solvable &= jnp.all(jnp.isfinite(lam), axis=0)
+        b = b - 2.0 * jnp.sum(U * lam[None, None], axis=2)
         lambdas.append(lam)
     return b, sum(lambdas), solvable
 
 
 def _sca_exact(A, beta, b0, lengths, n_steps: int, schedule: str, newton_iterations: int = 2):
-    """SCA re-solving ``(A + 2 Lambda_total)`` instead of the first-order update.
+    """SCA re-solving ``(A + 2 Lambda_total)`` instead of the first-order update (one frame, dense).
 
     The ST multiplier system is one Newton step on ``h(b(lambda)) = L^(i)`` (its matrix is the
     Jacobian up to -4); here each step takes ``newton_iterations`` of them with the exact
@@ -223,6 +303,37 @@ def _sca_exact(A, beta, b0, lengths, n_steps: int, schedule: str, newton_iterati
     return b, total, solvable
 
 
+def _lagrangian(A, beta, b0, lengths, *, n_iterations, step, dual_step, millimetres_per_unit):
+    """The official primal-dual gradient iteration (one frame), run in millimetres as its step sizes
+    assume. The algebraic cost is depth-weighted, so in another unit ``A`` is unchanged, ``beta`` and
+    the bones scale with the unit and the cost with its square; the multipliers are unit-free."""
+    s = millimetres_per_unit
+    beta_mm, L_mm = beta * s, lengths * s
+    n = b0.shape[0]
+
+    def body(_, state):
+        b, lam = state
+        grad = A @ b - beta_mm + 2.0 * jnp.repeat(lam, 3) * b
+        violation = jnp.sum(b.reshape(n, 3) ** 2, axis=1) - L_mm**2
+        return b - step * grad, lam + dual_step * violation
+
+    b, lam = jax.lax.fori_loop(0, n_iterations, body, (b0.reshape(-1) * s, jnp.zeros(n, A.dtype)))
+    return b.reshape(n, 3) / s, lam, jnp.array(True)
+
+
+def _reduced_from_quadratic(tree, D: Float[Array, "joints 3 3"], m: Float[Array, "joints 3"]):
+    """Dense ``A = (GQ)^T D (GQ)`` and ``beta = (GQ)^T m`` of one frame."""
+    num_joints, n = tree.path.shape
+    path = jnp.asarray(tree.path, D.dtype)
+    lifted = path[:, None, :, None] * jnp.eye(3, dtype=D.dtype)[None, :, None, :]  # (J,3,n,3)
+    S_inv = _inverse_3x3(jnp.sum(D, axis=0)[..., None])[0][..., 0]
+    subtree = jnp.einsum("jab,jbkc->akc", D, lifted)
+    GQ = (lifted - jnp.einsum("ab,bkc->akc", S_inv, subtree)[None]).reshape(num_joints, 3, 3 * n)
+    A = jnp.einsum("jak,jab,jbl->kl", GQ, D, GQ)
+    beta = jnp.einsum("jak,ja->k", GQ, m)
+    return 0.5 * (A + A.T), beta
+
+
 def reduced_problem(
     points_2d: Float[ArrayLike, "views joints 2"],
     projections: Float[ArrayLike, "views 3 4"],
@@ -235,20 +346,8 @@ def reduced_problem(
     (the constant ``p`` term of the official code drops out of beta, see the reference notes)."""
     points_2d, projections = jnp.asarray(points_2d), jnp.asarray(projections)
     weights = _default_weights(points_2d.shape[0], points_2d.shape[1], confidences, points_2d.dtype)
-    D, m = _quadratic_form(points_2d, projections, weights)
-    return _reduced_from_quadratic(_tree(skeleton), D, m)
-
-
-def _reduced_from_quadratic(tree, D, m):
-    num_joints, n = tree.path.shape
-    path = jnp.asarray(tree.path, D.dtype)
-    lifted = path[:, None, :, None] * jnp.eye(3, dtype=D.dtype)[None, :, None, :]  # (J,3,n,3)
-    S_inv, _ = _inverse_3x3(jnp.sum(D, axis=0))
-    subtree = jnp.einsum("jab,jbkc->akc", D, lifted)
-    GQ = (lifted - jnp.einsum("ab,bkc->akc", S_inv, subtree)[None]).reshape(num_joints, 3, 3 * n)
-    A = jnp.einsum("jak,jab,jbl->kl", GQ, D, GQ)
-    beta = jnp.einsum("jak,ja->k", GQ, m)
-    return 0.5 * (A + A.T), beta
+    D, m = _quadratic_form(points_2d[..., None], projections[..., None], weights[..., None])
+    return _reduced_from_quadratic(_tree(skeleton), D[..., 0], m[..., 0])
 
 
 def _default_weights(views, num_joints, confidences, dtype):
@@ -257,72 +356,59 @@ def _default_weights(views, num_joints, confidences, dtype):
     return jnp.asarray(confidences, dtype)
 
 
-def _frame(points_2d, projections, lengths, weights, *, skeleton, method, n_steps, schedule,
-           degenerate_rcond, lagrangian):
+def _per_frame(fn, A, beta, b0, lengths):
+    """Run a dense one-frame solver on frames-first ``A, beta`` and frames-last ``b0, lengths``."""
+    lengths = jnp.broadcast_to(lengths, lengths.shape[:1] + b0.shape[-1:])
+    return jax.vmap(fn, in_axes=(0, 0, -1, -1), out_axes=-1)(A, beta, b0, lengths)
+
+
+def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array, "views 3 4 #F"],
+           lengths: Float[Array, "bones #F"], weights: Float[Array, "views joints F"], *, skeleton, method,
+           n_steps, schedule, degenerate_rcond, lagrangian) -> StructriResult:
+    """One chunk of frames, frames on the last axis of every input and output."""
     tree = _tree(skeleton)
     D, m = _quadratic_form(points_2d, projections, weights)
     D_inv, rcond = _inverse_3x3(D)
-    min_rcond = jnp.min(rcond)
+    min_rcond = jnp.min(rcond, axis=0)
     underdetermined = ~(min_rcond > 1e-12)
 
     # Regularised LS: exact LS where D_i is well conditioned, finite where it is not.
-    scale = jnp.trace(jnp.sum(D, axis=0)) / (3.0 * D.shape[0])
-    D_reg_inv, _ = _inverse_3x3(D + 1e-12 * scale * jnp.eye(3, dtype=D.dtype)[None])
-    ls_pose = _matvec3(jnp.where(underdetermined, D_reg_inv, D_inv), m)
+    total = jnp.sum(D, axis=0)
+    scale = (total[0, 0] + total[1, 1] + total[2, 2]) / (3.0 * D.shape[0])
+    D_reg_inv, _ = _inverse_3x3(D + 1e-12 * scale[None, None, None] * jnp.eye(3, dtype=D.dtype)[None, :, :, None])
+    ls_pose = _matvec3(jnp.where(underdetermined[None, None, None], D_reg_inv, D_inv), m)
     ls_bones = ls_pose[tree.child] - ls_pose[tree.parent]
-    n = ls_bones.shape[0]
-    zeros = jnp.zeros(n, D.dtype)
+    zeros = jnp.zeros(ls_bones.shape[:1] + ls_bones.shape[2:], D.dtype)
 
     if method == "ls":
-        status = jnp.where(underdetermined, Status.UNDERDETERMINED, Status.OK)
+        status = jnp.where(underdetermined, Status.UNDERDETERMINED, Status.OK).astype(jnp.int32)
         return StructriResult(ls_pose, ls_bones, status, zeros)
 
     b0 = ls_bones
+    single = jnp.zeros(underdetermined.shape, bool)
     if method == "st":
         b, lam, solvable = _sca_first_order(tree, D_inv, b0, lengths, n_steps, schedule)
         if n_steps > 1:
             b1, lam1, solvable1 = _sca_first_order(tree, D_inv, b0, lengths, 1, schedule)
             single = min_rcond < degenerate_rcond
-            b, lam, solvable = (jnp.where(single, b1, b), jnp.where(single, lam1, lam),
+            b, lam, solvable = (jnp.where(single[None, None], b1, b), jnp.where(single[None], lam1, lam),
                                 jnp.where(single, solvable1, solvable))
+    else:
+        A, beta = jax.vmap(functools.partial(_reduced_from_quadratic, tree), in_axes=-1)(D, m)
+        if method == "st_exact":
+            solver = functools.partial(_sca_exact, n_steps=n_steps, schedule=schedule)
         else:
-            single = jnp.array(False)
-    elif method == "st_exact":
-        A, beta = _reduced_from_quadratic(tree, D, m)
-        b, lam, solvable = _sca_exact(A, beta, b0, lengths, n_steps, schedule)
-        single = jnp.array(False)
-    else:  # lagrangian
-        A, beta = _reduced_from_quadratic(tree, D, m)
-        b, lam = _lagrangian(A, beta, b0, lengths, **lagrangian)
-        solvable, single = jnp.array(True), jnp.array(False)
+            solver = functools.partial(_lagrangian, **lagrangian)
+        b, lam, solvable = _per_frame(solver, A, beta, b0, lengths)
 
     pose = _pose_from_bones(tree, D, m, b)
-    finite = solvable & jnp.all(jnp.isfinite(pose)) & jnp.all(jnp.isfinite(lam))
+    finite = solvable & jnp.all(jnp.isfinite(pose), axis=(0, 1)) & jnp.all(jnp.isfinite(lam), axis=0)
     status = jnp.where(underdetermined, Status.UNDERDETERMINED,
                        jnp.where(~finite, Status.FALLBACK_LS,
                                  jnp.where(single, Status.SINGLE_STEP, Status.OK)))
     use_ls = status >= Status.FALLBACK_LS
-    return StructriResult(jnp.where(use_ls, ls_pose, pose), jnp.where(use_ls, ls_bones, b),
-                          status.astype(jnp.int32), jnp.where(use_ls, zeros, lam))
-
-
-def _lagrangian(A, beta, b0, lengths, *, n_iterations, step, dual_step, millimetres_per_unit):
-    """The official primal-dual gradient iteration, run in millimetres as its step sizes assume.
-
-    The algebraic cost is depth-weighted, so in another unit ``A`` is unchanged, ``beta`` and the
-    bones scale with the unit and the cost with its square; the multipliers are unit-free."""
-    s = millimetres_per_unit
-    beta_mm, L_mm = beta * s, lengths * s
-    n = b0.shape[0]
-
-    def body(_, state):
-        b, lam = state
-        grad = A @ b - beta_mm + 2.0 * jnp.repeat(lam, 3) * b
-        violation = jnp.sum(b.reshape(n, 3) ** 2, axis=1) - L_mm**2
-        return b - step * grad, lam + dual_step * violation
-
-    b, lam = jax.lax.fori_loop(0, n_iterations, body, (b0.reshape(-1) * s, jnp.zeros(n, A.dtype)))
-    return b.reshape(n, 3) / s, lam
+    return StructriResult(jnp.where(use_ls[None, None], ls_pose, pose), jnp.where(use_ls[None, None], ls_bones, b),
+                          status.astype(jnp.int32), jnp.where(use_ls[None], zeros, lam))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -380,14 +466,37 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
     return frames, args, axes
 
 
+_CHUNK_FRAMES = 256
+"""Frames per chunk of the frames-last kernels: keeps each chunk's working set (about 16 x 48 numbers
+per frame in SCA) in cache; the chunks run sequentially under ``lax.map``."""
+
+
 @functools.partial(jax.jit, static_argnames=("axes", "skeleton", "method", "n_steps", "schedule",
                                               "degenerate_rcond", "lagrangian"))
 def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_steps, schedule,
                 degenerate_rcond, lagrangian):
-    kernel = functools.partial(_frame, skeleton=skeleton, method=method, n_steps=n_steps,
-                               schedule=schedule, degenerate_rcond=degenerate_rcond,
+    """Frames-first flat inputs -> frames-last chunks -> :func:`_chunk` under ``lax.map`` -> frames-first."""
+    frames = points_2d.shape[0]
+    chunk = max(1, min(frames, _CHUNK_FRAMES))
+    num_chunks = -(-frames // chunk)
+    pad = num_chunks * chunk - frames
+
+    def to_chunks(x):
+        if pad:  # repeat the last frame: finite filler, dropped below
+            x = jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)])
+        return jnp.moveaxis(x.reshape((num_chunks, chunk) + x.shape[1:]), 1, -1)
+
+    kernel = functools.partial(_chunk, skeleton=skeleton, method=method, n_steps=n_steps, schedule=schedule,
+                               degenerate_rcond=degenerate_rcond,
                                lagrangian=dict(lagrangian) if lagrangian else None)
-    return jax.vmap(kernel, in_axes=axes)(points_2d, P, lengths, weights)
+    shared = [x[..., None] if axis is None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
+    batched = [to_chunks(x) if axis is not None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
+
+    def run(chunk_args):
+        return kernel(*[s if s is not None else c for s, c in zip(shared, chunk_args)])
+
+    out = jax.lax.map(run, batched)
+    return jax.tree.map(lambda x: jnp.moveaxis(x, -1, 1).reshape((num_chunks * chunk,) + x.shape[1:-1])[:frames], out)
 
 
 def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_steps=1,
@@ -419,8 +528,8 @@ def structural_triangulation(
         bone_lengths: target lengths in ``skeleton.bones`` order, shared or per frame.
         skeleton: any tree; bones are ``skeleton.bones`` (child-index order).
         confidences: weights w per view and joint (default ``1/views``); a zero weight drops a view.
-        n_steps: SCA steps N (1 = plain ST). The first-order path traces ``2^N`` applications of
-            ``A^-1`` per step, so compile time grows with N (the paper uses N <= 9).
+        n_steps: SCA steps N (1 = plain ST). The first-order path runs ``2^N - 1`` applications of
+            ``A^-1`` in all (its traced graph grows linearly in N; the paper uses N <= 9).
         schedule: ``"length"`` interpolates lengths (official code, default) or ``"squared"`` squared
             lengths (paper Eq. 16).
         update: ``"first_order"`` (Alg. 1's accumulated ``T^i``) or ``"exact"`` (re-solves
@@ -498,18 +607,13 @@ def lem_triangulation(
 @functools.partial(jax.jit, static_argnames=("axes", "skeleton"))
 def _lem_flat(points_2d, P, lengths, weights, *, axes, skeleton):
     tree = _tree(skeleton)
-
-    def frame(points_2d, P, weights):
-        dlt = jax.vmap(triangulate_point, in_axes=(None, 1, 1))(P, points_2d, weights)
-        pose, ok = dlt.point, dlt.valid
-        ls = _frame(points_2d, P, None, weights, skeleton=skeleton, method="ls", n_steps=1,
-                    schedule="length", degenerate_rcond=0.0, lagrangian=None)
-        pose = jnp.where(ok[:, None], pose, ls.pose)
-        status = jnp.where(jnp.all(ok), Status.OK, Status.UNDERDETERMINED).astype(jnp.int32)
-        bones = pose[tree.child] - pose[tree.parent]
-        return StructriResult(pose, bones, status, jnp.zeros(bones.shape[0], pose.dtype))
-
-    return jax.vmap(frame, in_axes=(axes[0], axes[1], axes[3]))(points_2d, P, weights)
+    dlt = jax.vmap(jax.vmap(triangulate_point, in_axes=(None, 1, 1)), in_axes=(axes[1], 0, 0))(P, points_2d, weights)
+    ls = _solve_flat(points_2d, P, lengths, weights, axes=axes, skeleton=skeleton, method="ls", n_steps=1,
+                     schedule="length", degenerate_rcond=0.0, lagrangian=())
+    pose = jnp.where(dlt.valid[..., None], dlt.point, ls.pose)
+    status = jnp.where(jnp.all(dlt.valid, axis=-1), Status.OK, Status.UNDERDETERMINED).astype(jnp.int32)
+    bones = pose[:, tree.child] - pose[:, tree.parent]
+    return StructriResult(pose, bones, status, jnp.zeros(bones.shape[:2], pose.dtype))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -8,11 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-from scipy.optimize import linear_sum_assignment
 
 from geometry import (BODY25, COCO17, H36M17, HEAD_RULES, SHELF14, SHELF15, SKEL19, Skeleton,
                       aggregate_precision_recall, joint_precision_recall, mpjpe, pcp, remap_joints, to_shelf15,
                       to_shelf15_validity)
+from mocap import match_predictions
 
 # shelf_protocol.md section 2: source index of Shelf15 joints 0..11.
 LIMB_SOURCE = {
@@ -302,9 +302,9 @@ def shelf_4da_matched(data_root):
         actors = list(people)
         gt = np.stack([people[a][:3].T for a in actors])
         pred15 = all_shelf[sizes[f]:sizes[f + 1]]
-        rows, cols = linear_sum_assignment(np.linalg.norm(pred15[:, None] - gt[None], axis=-1).sum(-1))
-        assert len(cols) == len(actors)  # every annotated actor is matched in this file
-        for r, c in zip(rows, cols):
+        match = match_predictions(pred15, gt, "4dassoc")
+        assert np.all(match >= 0)  # every annotated actor is matched in this file
+        for c, r in enumerate(match):
             out["skel19"].append(all_preds[f][r])
             out["shelf15"].append(pred15[r])
             out["gt"].append(gt[c])

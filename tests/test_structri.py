@@ -5,18 +5,18 @@ import jax
 import numpy as np
 import pytest
 
-from geometry import H36M17, Camera, Skeleton, bone_lengths
+from geometry import H36M17, Skeleton, bone_lengths, structri_virtual_rig
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
                       lem_triangulation, ls_triangulation, numpy_structural_triangulation_frames,
                       reduced_objective, reduced_problem, structural_triangulation)
 
 # H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
 _LENGTH = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
-           "spine": 0.23, "thorax": 0.25, "neck": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
+           "spine": 0.23, "thorax": 0.25, "neck_nose": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
            "r_elbow": 0.28, "l_elbow": 0.28, "r_wrist": 0.25, "l_wrist": 0.25}
 _DIRECTION = {"r_hip": (-1, 0, 0), "l_hip": (1, 0, 0), "r_knee": (0, -1, 0), "l_knee": (0, -1, 0),
               "r_ankle": (0, -1, 0), "l_ankle": (0, -1, 0), "spine": (0, 1, 0), "thorax": (0, 1, 0),
-              "neck": (0, 1, 0), "head": (0, 1, 0), "r_shoulder": (-1, 0, 0), "l_shoulder": (1, 0, 0),
+              "neck_nose": (0, 1, 0), "head": (0, 1, 0), "r_shoulder": (-1, 0, 0), "l_shoulder": (1, 0, 0),
               "r_elbow": (-1, -0.3, 0), "l_elbow": (1, -0.3, 0), "r_wrist": (-1, -0.3, 0.2), "l_wrist": (1, -0.3, 0.2)}
 LENGTHS = np.array([_LENGTH[H36M17.joints[c]] for _, c in H36M17.bones])
 
@@ -32,13 +32,8 @@ def synthetic_poses(frames, rng, root_spread=0.05):
 
 
 def virtual_rig(views, pattern, unit=1.0):
-    """Spec section 5: R_y(theta_i), t = [0, 0, 2 m], f = 900 px, skew 0.5, principal point (500, 500)."""
-    span = 2 * np.pi if pattern == "round" else np.pi
-    K = np.array([[900.0, 0.5, 500.0], [0.0, 900.0, 500.0], [0.0, 0.0, 1.0]])
-    theta = span * np.arange(views) / views
-    c, s, z, o = np.cos(theta), np.sin(theta), np.zeros(views), np.ones(views)
-    R = np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
-    return Camera.create(np.broadcast_to(K, (views, 3, 3)), R, np.tile([0.0, 0.0, 2.0 * unit], (views, 1)))
+    """Spec section 5 (y-up data): R_y(theta_i), t = [0, 0, 2 m], f = 900 px, skew 0.5."""
+    return structri_virtual_rig(views, pattern, up_axis="y", distance=2.0 * unit)
 
 
 def observe(rig, poses, sigma, rng):

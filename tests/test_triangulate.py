@@ -86,6 +86,11 @@ def test_five_weighted_views_match_numpy_svd(method, normalize_rows):
     expected = numpy_dlt(projections, pixels, weights, normalize_rows)
     np.testing.assert_allclose(result.point, expected, rtol=1e-9, atol=1e-9)
     assert result.num_views.tolist() == [5] * N
+    rows = pixels[..., None] * projections[:, 2:3, :] - projections[:, :2, :]
+    if normalize_rows:
+        rows = rows / np.linalg.norm(rows, axis=-1, keepdims=True)
+    smallest_singular_value = np.linalg.svd((weights[:, :, None, None] * rows).reshape(N, -1, 4))[1][:, -1]
+    np.testing.assert_allclose(result.residual, smallest_singular_value, rtol=1e-7)
 
 
 def test_batch_dimensions_are_preserved():

@@ -1,0 +1,165 @@
+"""The Shelf experiment behind ``python -m experiments.shelf_jcsat``: run a method, write predictions, score them.
+
+Real data (``data_root`` holding ``shelf/``): the OpenPose detections of the standard test frames
+300..600 (``quick``: the first 60), scored against actorsGT under the three matching protocols of
+``shelf_protocol.md`` next to the 4D-association output (``shelf/4d_association/skel.txt``) scored by
+the same evaluator. Without data: a seeded synthetic scene with the Shelf rig and the realistic
+detector (:func:`mocap.synthesize_scene`), scored against its own ground truth, labelled synthetic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+import mocap
+
+from ._pipeline import BaselineConfig, BaselineResult, run_geometric_baseline
+
+__all__ = ["ShelfExperimentConfig", "ShelfExperimentResult", "run_shelf_experiment", "METHODS"]
+
+METHODS: tuple[str, ...] = ("geometric",)
+"""Methods the experiment can run. JCSAT itself (the transformer) is a later issue."""
+
+_QUICK_REAL_FRAMES = 60
+
+
+@dataclasses.dataclass(frozen=True)
+class ShelfExperimentConfig:
+    """Everything that determines a run (saved as ``config.json``)."""
+
+    method: str = "geometric"
+    data_root: str | None = None
+    """Folder with ``shelf/``; None runs the synthetic scene."""
+    quick: bool = False
+    """Real: the first 60 test frames; synthetic: 40 frames of 3 people."""
+    seed: int = 0
+    """Synthetic scene key and K-Means key."""
+    synthetic_people: int = 4
+    synthetic_frames: int = 150
+    plot: bool = True
+    """Write ``frame.png`` (Joint Cloud of one person, baseline, ground truth, reprojections)."""
+    baseline: BaselineConfig = BaselineConfig()
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+
+
+class ShelfExperimentResult(NamedTuple):
+    metrics: dict
+    """What ``metrics.json`` holds."""
+    table: str
+    """The printed summary."""
+    baseline: BaselineResult
+
+
+def _score_table(scores: dict[str, dict[str, mocap.ShelfScore]], actors: tuple[int, ...]) -> str:
+    """Rows: method x protocol; columns: per-actor PCP, average, MPJPE (matched), misses."""
+    head = " ".join(f"{'A' + str(a + 1):>6}" for a in actors)
+    lines = [f"{'method':<12} {'protocol':<10} {head} {'avg':>7} {'MPJPE mm':>9} {'misses':>6}"]
+    for method, by_protocol in scores.items():
+        for protocol, score in by_protocol.items():
+            by_actor = {s.actor: s for s in score.actors}
+            cells = " ".join(f"{by_actor[a].pcp:6.1f}" if a in by_actor else f"{'-':>6}" for a in actors)
+            misses = sum(by_actor[a].misses for a in score.averaged_actors)
+            lines.append(f"{method:<12} {protocol:<10} {cells} {score.average['pcp']:7.2f} "
+                         f"{score.average['mpjpe_mm']:9.1f} {misses:6d}")
+    return "\n".join(lines)
+
+
+def run_shelf_experiment(
+    config: ShelfExperimentConfig,
+    out_dir: str | Path,
+    log: Callable[[dict], None] = lambda event: None,
+    progress: Callable[[str], None] = lambda stage: None,
+) -> ShelfExperimentResult:
+    """Run ``config`` and write ``config.json``, ``predictions.jsonl``, ``metrics.json`` (and
+    ``frame.png``) to ``out_dir``. ``log`` receives one JSON-ready dict per event, ``progress`` the
+    name of each stage as it starts."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2) + "\n")
+    started = time.perf_counter()
+
+    def event(stage: str, **fields) -> None:
+        log({"stage": stage, "elapsed_s": round(time.perf_counter() - started, 3), **fields})
+
+    progress("data")
+    synthetic = config.data_root is None
+    scene = None
+    if synthetic:
+        people = 3 if config.quick else config.synthetic_people
+        frames = 40 if config.quick else config.synthetic_frames
+        scene = mocap.synthesize_scene(jax.random.key(config.seed), mocap.shelf_cameras(), num_people=people,
+                                       num_frames=frames)
+        rig, detections, frame_indices = scene.rig, scene.detections, np.arange(frames)
+        ground_truth = mocap.EvaluationGroundTruth(frame_indices, np.swapaxes(scene.shelf15, 0, 1),
+                                                   np.ones((people, frames), bool))
+        actors = tuple(range(people))
+        data = {"kind": "synthetic", "people": people, "frames": frames, "seed": config.seed,
+                "clips": list(scene.placement.names)}
+    else:
+        root = Path(config.data_root)
+        rig = mocap.shelf_cameras(root)
+        detections, frame_indices = mocap.load_shelf_detections(root)
+        if config.quick:
+            detections, frame_indices = detections[:_QUICK_REAL_FRAMES], frame_indices[:_QUICK_REAL_FRAMES]
+        ground_truth = mocap.shelf_evaluation_ground_truth(root, frames=frame_indices)
+        actors = (0, 1, 2, 3)
+        data = {"kind": "shelf", "frames": [int(frame_indices[0]), int(frame_indices[-1])], "data_root": str(root)}
+    event("data", **data)
+
+    progress(config.method)
+    result = run_geometric_baseline(rig, detections, frame_indices, config.baseline)
+    event(config.method, seconds={k: round(v, 3) for k, v in result.seconds.items()},
+          tracks=int(result.present.shape[0]), predictions=int(result.predictions.num_predictions))
+    mocap.write_predictions(out / "predictions.jsonl", result.predictions)
+
+    progress("evaluation")
+    averaged = (0, 1, 2) if not synthetic else actors
+    compared = {config.method: result.predictions}
+    if not synthetic:
+        four_da = mocap.predictions_from_4dassoc(Path(config.data_root) / "shelf" / "4d_association" / "skel.txt")
+        compared["4DA output"] = mocap.PosePredictions.create(
+            *(field[np.isin(four_da.frame, frame_indices)] if field is not None else None for field in four_da)
+        )
+    scores = {name: {p: mocap.evaluate_shelf(pred, ground_truth, p, averaged) for p in mocap.EVALUATION_PROTOCOLS}
+              for name, pred in compared.items()}
+    table = _score_table(scores, actors)
+    kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesize_scene), NOT the real Shelf data" if synthetic
+            else f"real Shelf, actorsGT frames {frame_indices[0]}..{frame_indices[-1]}")
+    title = (f"method: {config.method} (learning-free Joint Cloud baseline; JCSAT itself is not implemented yet)\n"
+             f"data: {kind}; PCP averaged over actors {', '.join(str(a + 1) for a in averaged)}")
+    metrics = {
+        "method": config.method, "data": data, "synthetic": synthetic,
+        "scores": {name: {p: s.to_dict() for p, s in by.items()} for name, by in scores.items()},
+        "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
+        "total_seconds": round(time.perf_counter() - started, 3),
+    }
+    event("evaluation", pcp={name: {p: round(s.average["pcp"], 2) for p, s in by.items()} for name, by in scores.items()})
+
+    if config.plot:
+        progress("plot")
+        from ._plot import plot_frame
+
+        frame = _plot_frame_choice(result)
+        truth = ground_truth.joints[:, frame][ground_truth.annotated[:, frame]]
+        plot_frame(out / "frame.png", rig, mocap.pad_detections(detections, config.baseline.max_candidates), result, frame, truth,
+                   title=f"{'synthetic' if synthetic else 'Shelf'} frame {int(frame_indices[frame])}")
+        metrics["plot"] = {"file": "frame.png", "frame": int(frame_indices[frame])}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    event("done", total_seconds=metrics["total_seconds"])
+    return ShelfExperimentResult(metrics, title + "\n" + table, result)
+
+
+def _plot_frame_choice(result: BaselineResult) -> int:
+    """The frame with the most tracks present (earliest on ties): a busy, representative frame."""
+    return int(np.argmax(result.present.sum(axis=0)))

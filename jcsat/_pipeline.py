@@ -1,0 +1,116 @@
+"""The whole learning-free pipeline: detections -> Joint Cloud -> persons and tracks -> geometric poses -> Shelf15."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import NamedTuple
+
+import jax
+import numpy as np
+from jaxtyping import Bool, Float, Int
+
+import geometry
+import mocap
+from geometry import BODY25, Camera
+
+from ._clustering import (
+    ClusterConfig,
+    FrameClusters,
+    PersonJointCloud,
+    cluster_frames,
+    people_count,
+    person_joint_cloud,
+    track_centres,
+)
+from ._geometric import GeometricConfig, fill_missing, geometric_poses
+from ._joint_cloud import JointCloud, JointCloudConfig, build_joint_cloud
+
+__all__ = ["BaselineConfig", "BaselineResult", "run_geometric_baseline"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BaselineConfig:
+    """Every parameter of the geometric baseline (saved next to its outputs)."""
+
+    joint_cloud: JointCloudConfig = JointCloudConfig()
+    cluster: ClusterConfig = ClusterConfig()
+    geometric: GeometricConfig = GeometricConfig()
+    seed: int = 0
+    """K-Means key: ``jax.random.key(seed)``."""
+    max_candidates: int | None = None
+    """Pad every view and joint type to this many 2D candidates (default: the largest count). A fixed
+    size lets runs of different scenes share one compilation."""
+
+
+class BaselineResult(NamedTuple):
+    predictions: mocap.PosePredictions
+    """Shelf15 poses, one row per (frame, track) where the track is present; joints never seen by
+    the track are (0, 0, 0)."""
+    body25: Float[np.ndarray, "T F 25 3"]
+    """Per track, after :func:`~jcsat.fill_missing` (metres)."""
+    body25_valid: Bool[np.ndarray, "T F 25"]
+    present: Bool[np.ndarray, "T F"]
+    cloud: JointCloud
+    clusters: FrameClusters
+    track_of: Int[np.ndarray, "F K"]
+    person_cloud: PersonJointCloud
+    seconds: dict[str, float]
+    """Wall time of each stage (including compilation on the first call)."""
+
+
+def _timed(seconds: dict[str, float], name: str, fn, *args):
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    seconds[name] = time.perf_counter() - start
+    return out
+
+
+def run_geometric_baseline(
+    rig: Camera,
+    detections: list[list[mocap.Detections]],
+    frame_indices: Int[np.ndarray, " F"],
+    config: BaselineConfig = BaselineConfig(),
+) -> BaselineResult:
+    """Run the baseline on ``detections[f][view]`` (BODY25) seen by ``rig``.
+
+    ``frame_indices[f]`` is the frame number written into the predictions (actorsGT index on Shelf).
+    """
+    frame_indices = np.asarray(frame_indices)
+    if len(frame_indices) != len(detections):
+        raise ValueError(f"{len(detections)} frames of detections but {len(frame_indices)} frame indices")
+    seconds: dict[str, float] = {}
+    padded = mocap.pad_detections(detections, config.max_candidates)
+    cloud = _timed(seconds, "joint_cloud", build_joint_cloud, rig, padded.xy, padded.score, padded.mask,
+                   config.joint_cloud)
+    counts = people_count(padded.score, padded.mask, config.cluster)
+    clusters = _timed(seconds, "clustering", cluster_frames, cloud, counts, jax.random.key(config.seed), config.cluster)
+    start = time.perf_counter()
+    track_of = track_centres(clusters.centres, clusters.active, config.cluster.track_gate)
+    seconds["tracking"] = time.perf_counter() - start
+    person_cloud = _timed(seconds, "model_tensor", person_joint_cloud, cloud, clusters, track_of, config.cluster)
+    poses = _timed(seconds, "geometric", geometric_poses, rig, padded.xy, padded.score, cloud, clusters,
+                   config.geometric)
+
+    start = time.perf_counter()
+    num_tracks, num_frames = person_cloud.present.shape
+    body25 = np.zeros((num_tracks, num_frames, BODY25.num_joints, 3))
+    valid = np.zeros((num_tracks, num_frames, BODY25.num_joints), bool)
+    frame_of, slot_of = np.nonzero(track_of >= 0)
+    body25[track_of[frame_of, slot_of], frame_of] = np.asarray(poses.body25)[frame_of, slot_of]
+    valid[track_of[frame_of, slot_of], frame_of] = np.asarray(poses.valid)[frame_of, slot_of]
+    for t in range(num_tracks):
+        body25[t], valid[t] = fill_missing(body25[t], valid[t], person_cloud.present[t])
+    shelf15 = np.asarray(geometry.to_shelf15(body25, BODY25))
+    shelf_valid = np.asarray(geometry.to_shelf15_validity(valid, BODY25))
+    shelf15 = np.where(shelf_valid[..., None], shelf15, 0.0)
+    track, frame = np.nonzero(person_cloud.present.T)[::-1]  # rows ordered by frame, then track
+    order = np.lexsort((track, frame))
+    track, frame = track[order], frame[order]
+    predictions = mocap.PosePredictions.create(
+        frame_indices[frame].astype(np.int64), track.astype(np.int64), shelf15[track, frame],
+        score=valid[track, frame].mean(axis=-1),
+    )
+    seconds["assemble"] = time.perf_counter() - start
+    return BaselineResult(predictions, body25, valid, person_cloud.present, cloud, clusters, track_of,
+                          person_cloud, seconds)

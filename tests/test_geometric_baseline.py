@@ -1,0 +1,75 @@
+"""The geometric baseline and the Shelf experiment on small synthetic scenes (real data: one marked test)."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+import geometry
+import jcsat
+import mocap
+
+FRAMES = 8
+CONFIG = jcsat.BaselineConfig(max_candidates=6)  # one padding for every scene here: one compilation
+
+
+def _scores(result, body25_gt, people):
+    gt15 = np.asarray(geometry.to_shelf15(body25_gt, geometry.BODY25))  # same head rule as the predictions
+    truth = mocap.EvaluationGroundTruth(np.arange(FRAMES), np.swapaxes(gt15, 0, 1), np.ones((people, FRAMES), bool))
+    return mocap.evaluate_shelf(result.predictions, truth, "voxelpose", tuple(range(people)))
+
+
+def test_perfect_detector_recovers_ground_truth():
+    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
+                                   detector=mocap.PERFECT_DETECTOR)
+    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
+    score = _scores(result, scene.body25, 2)
+    assert score.average["pcp"] == 100.0
+    assert score.average["mpjpe_mm"] < 5.0
+
+
+def test_realistic_detector_sensible():
+    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
+    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
+    score = _scores(result, scene.body25, 2)
+    assert score.average["pcp"] > 70.0
+
+
+def test_consensus_rejects_outlier_candidate():
+    rig = mocap.shelf_cameras()
+    truth = np.array([0.3, 0.2, 1.1])
+    pixels = np.stack([np.asarray(geometry.project(rig.select(v), truth)) for v in range(5)])[:, None]  # (V, 1, 2)
+    pairs = jcsat.view_pairs(5)
+    points = np.tile(truth, (10, 1))
+    points[0] = truth + [0.5, 0.0, 0.0]  # a spurious candidate (its pair's detections are the true ones here)
+    point, found, views = jcsat.consensus_joint(
+        points, np.ones(10), pairs, np.zeros((10, 2), np.int32), pixels, np.ones((5, 1)),
+        geometry.projection_matrix(rig), 0.1)
+    assert bool(found) and int(views) == 5
+    np.testing.assert_allclose(point, truth, atol=1e-6)
+
+
+def test_fill_missing_uses_nearest_frame():
+    joints = np.arange(4 * 2 * 3, dtype=float).reshape(4, 2, 3)
+    valid = np.array([[True, False], [False, False], [False, False], [True, True]])
+    filled, ok = jcsat.fill_missing(joints, valid, np.array([True, True, True, True]))
+    np.testing.assert_array_equal(filled[1, 0], joints[0, 0])
+    np.testing.assert_array_equal(filled[2, 0], joints[3, 0])
+    np.testing.assert_array_equal(filled[0, 1], joints[3, 1])
+    assert ok.all()
+
+
+def test_experiment_end_to_end(tmp_path):
+    config = jcsat.ShelfExperimentConfig(synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
+    events = []
+    result = jcsat.run_shelf_experiment(config, tmp_path, log=events.append)
+    assert "SYNTHETIC" in result.table and "geometric" in result.table
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["synthetic"] and set(metrics["scores"]["geometric"]) == set(mocap.EVALUATION_PROTOCOLS)
+    assert mocap.read_predictions(tmp_path / "predictions.jsonl").num_predictions == result.baseline.predictions.num_predictions
+    assert json.loads((tmp_path / "config.json").read_text())["baseline"]["joint_cloud"]["min_score"] == 0.2
+    assert (tmp_path / "frame.png").stat().st_size > 10_000
+    assert [e["stage"] for e in events][-1] == "done"
+    with pytest.raises(ValueError, match="method"):
+        jcsat.ShelfExperimentConfig(method="jcsat")

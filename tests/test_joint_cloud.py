@@ -1,0 +1,165 @@
+"""Joint Cloud construction, K-Means, tracking and the model tensor."""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import geometry
+import jcsat
+import mocap
+
+NUM_JOINTS = 3  # a small frame: 3 joint types keep the NumPy loop reference fast
+
+
+@pytest.fixture(scope="module")
+def frame():
+    """Two people, five Shelf views, three joint types, noisy pixels, one low score and one padded slot."""
+    rig = mocap.shelf_cameras()
+    rng = np.random.default_rng(0)
+    people = np.array([[0.0, 0.0, 1.0], [1.2, 0.5, 1.0]])[:, None, :] + rng.normal(0, 0.3, (2, NUM_JOINTS, 3))
+    pixels = np.stack([np.asarray(geometry.project(rig.select(v), people)) for v in range(5)])  # (V, 2, J, 2)
+    pixels += rng.normal(0, 1.0, pixels.shape)
+    xy = np.zeros((5, NUM_JOINTS, 3, 2))
+    xy[:, :, :2] = np.swapaxes(pixels, 1, 2)
+    score = np.zeros((5, NUM_JOINTS, 3))
+    score[:, :, :2] = rng.uniform(0.3, 0.9, (5, NUM_JOINTS, 2))
+    mask = np.zeros((5, NUM_JOINTS, 3), bool)
+    mask[:, :, :2] = True
+    score[1, 0, 0] = 0.1  # below the score filter
+    mask[2, 1, 1] = False  # person 1's joint 1 not detected in view 2
+    return rig, xy, score, mask, people
+
+
+def test_matches_numpy_loop_reference(frame):
+    rig, xy, score, mask, _ = frame
+    cloud = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None])
+    reference = jcsat.numpy_joint_cloud_frame(rig, xy, score, mask)
+    valid = np.asarray(cloud.valid[0])
+    assert valid.sum() == len(reference) > 10
+    for item in reference:
+        index = (0, item["pair"], item["joint"], item["a"], item["b"])
+        assert valid[index[1:]]
+        np.testing.assert_allclose(cloud.point[index], item["point"], atol=1e-5)  # cv2 rounds to ~1 um
+        np.testing.assert_allclose(cloud.ray_distance[index], item["ray_distance"], atol=1e-9)
+        np.testing.assert_allclose(cloud.reprojection_error[index], item["reprojection_error"], atol=1e-6)
+        pair = jcsat.view_pairs(5)[item["pair"]]
+        np.testing.assert_allclose(cloud.score[index], [score[pair[0], item["joint"], item["a"]],
+                                                        score[pair[1], item["joint"], item["b"]]])
+    assert not np.asarray(cloud.point[0])[~valid].any()
+
+
+def test_filters(frame):
+    rig, xy, score, mask, people = frame
+    cloud = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None])
+    pairs = jcsat.view_pairs(5)
+    valid = np.asarray(cloud.valid[0])
+    assert not valid[pairs[:, 0] == 1, 0, 0].any() and not valid[pairs[:, 1] == 1, 0, :, 0].any()  # low score
+    assert not valid[pairs[:, 0] == 2, 1, 1].any() and not valid[pairs[:, 1] == 2, 1, :, 1].any()  # padded
+    same = valid[:, :, [0, 1], [0, 1]]  # same person in both views: pass unless filtered by score/mask
+    cross = valid[:, :, [0, 1], [1, 0]]
+    assert same.mean() > 0.8 and cross.mean() < 0.2
+    # Same-person candidates are close to the truth; the ray filter bounds the ones that pass.
+    points = np.asarray(cloud.point[0])[:, np.arange(NUM_JOINTS)[:, None], [0, 1], [0, 1]]  # (P, J, 2, 3)
+    error = np.linalg.norm(points - np.swapaxes(people, 0, 1)[None], axis=-1)[same]
+    assert error.max() < 0.05
+    assert (np.asarray(cloud.ray_distance[0])[valid] < 0.1).all()
+    loose = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None], jcsat.JointCloudConfig(max_ray_distance=5.0))
+    strict = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None], jcsat.JointCloudConfig(min_score=0.5))
+    assert np.asarray(loose.valid).sum() > valid.sum() > np.asarray(strict.valid).sum()
+
+
+def test_jit_equals_eager(frame):
+    rig, xy, score, mask, _ = frame
+    args = (rig, jnp.asarray(xy), jnp.asarray(score), jnp.asarray(mask))
+    eager = jcsat.joint_cloud_frame(*args)
+    jitted = jax.jit(jcsat.joint_cloud_frame)(*args)
+    for a, b in zip(eager, jitted):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-9)
+
+
+def test_bad_input_raises(frame):
+    rig, xy, score, mask, _ = frame
+    with pytest.raises(ValueError, match="shape"):
+        jcsat.build_joint_cloud(rig, xy, score, mask)
+    bad = xy.copy()
+    bad[0, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        jcsat.build_joint_cloud(rig, bad[None], score[None], mask[None])
+    with pytest.raises(ValueError, match="max_ray_distance"):
+        jcsat.JointCloudConfig(max_ray_distance=0.0)
+    assert len(jcsat.view_pairs(5)) == 10 and list(jcsat.view_pairs(3)) == [[0, 1], [0, 2], [1, 2]]
+
+
+def _blobs(seed: int):
+    rng = np.random.default_rng(seed)
+    centres = np.array([[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [0.0, 2.0, 1.0]])
+    points = np.concatenate([c + rng.normal(0, 0.05, (12, 3)) for c in centres] + [np.zeros((4, 3))])
+    weight = np.r_[np.ones(36), np.zeros(4)]  # 4 padded rows at the origin
+    return centres, points, weight
+
+
+def test_kmeans_finds_separated_clusters_deterministically():
+    centres, points, weight = _blobs(1)
+    key = jax.random.key(3)
+    result = jcsat.kmeans(points, weight, 3, key, num_slots=5)
+    again = jcsat.kmeans(points, weight, 3, key, num_slots=5)
+    np.testing.assert_array_equal(np.asarray(result.centres), np.asarray(again.centres))
+    assert np.asarray(result.active).tolist() == [True, True, True, False, False]
+    found = np.asarray(result.centres)[:3]
+    distance = np.linalg.norm(found[:, None] - centres[None], axis=-1)
+    assert sorted(distance.argmin(axis=1).tolist()) == [0, 1, 2] and distance.min(axis=1).max() < 0.05
+
+
+def test_trimmed_kmeans_ignores_outlier():
+    centres, points, weight = _blobs(2)
+    points[-1], weight[-1] = [8.0, 8.0, 1.0], 1.0  # one far spurious candidate
+    plain = jcsat.kmeans(points, weight, 3, jax.random.key(0), num_slots=3)
+    trimmed = jcsat.kmeans(points, weight, 3, jax.random.key(0), num_slots=3, trim=0.3)
+    worst = lambda r: np.linalg.norm(np.asarray(r.centres)[:, None] - centres[None], axis=-1).min(axis=0).max()  # noqa: E731
+    assert worst(trimmed) < 0.05 < worst(plain)
+
+
+def test_tracking_survives_swapped_detection_order():
+    rng = np.random.default_rng(0)
+    paths = np.stack([np.array([0.0, 0.0, 1.0]) + np.cumsum(rng.normal(0, 0.02, (20, 3)), 0),
+                      np.array([1.5, 0.0, 1.0]) + np.cumsum(rng.normal(0, 0.02, (20, 3)), 0)], axis=1)  # (F, 2, 3)
+    swapped = paths.copy()
+    swapped[10:] = paths[10:, ::-1]  # the detector lists the people in the other order from frame 10
+    active = np.ones((20, 2), bool)
+    for centres in (paths, swapped):
+        track = jcsat.track_centres(centres, active, gate=0.5)
+        owner = np.where(np.allclose(centres, paths), 0, 1)
+        of_person0 = np.array([track[f, list(map(tuple, centres[f])).index(tuple(paths[f, 0]))] for f in range(20)])
+        assert len(set(of_person0)) == 1, owner
+        assert set(np.unique(track)) == {0, 1}
+
+
+def test_windows_and_people_count():
+    windows = jcsat.window_frames(12, 10)
+    assert windows.shape == (12, 10) and windows[0].tolist() == [0] * 10 and windows[11].tolist() == list(range(2, 12))
+    score = np.zeros((2, 3, 25, 4))
+    mask = np.zeros((2, 3, 25, 4), bool)
+    mask[:, :, 8, :3] = True
+    score[:, :, 8, :3] = 0.5
+    score[0, 0, 8, 2] = 0.1  # view 0 of frame 0 sees only two confident mid-hips
+    for rule, expected in (("min", [2, 3]), ("median", [3, 3]), ("max", [3, 3])):
+        assert jcsat.people_count(score, mask, jcsat.ClusterConfig(people_rule=rule)).tolist() == expected
+
+
+def test_model_tensor_layout():
+    scene = mocap.synthesize_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
+                                   detector=mocap.PERFECT_DETECTOR)
+    config = jcsat.BaselineConfig(max_candidates=6)
+    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(4), config)
+    tensor = result.person_cloud
+    tracks = tensor.present.shape[0]
+    assert tensor.points.shape == (tracks, 4, 10, 4, 25, 3) and tensor.mask.shape == (tracks, 4, 10, 4, 25)
+    assert tracks >= 2 and tensor.present.sum() >= 8
+    # Kept candidates of a person lie within the joint radius of its centre.
+    t, f, p, m, j = np.nonzero(np.asarray(tensor.mask))
+    distance = np.linalg.norm(np.asarray(tensor.points)[t, f, p, m, j] - tensor.centre[t, f], axis=-1)
+    assert (distance < np.asarray(jcsat.BODY25_JOINT_RADIUS)[j]).all()
+    assert not np.asarray(tensor.points)[~np.asarray(tensor.mask)].any()
