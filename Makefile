@@ -3,8 +3,6 @@ PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 DATA_ROOT ?= ../shared/data
-# Disables the YNNPACK fusion pass that miscompiles jitted reductions in jaxlib 0.10.2 (see tests/test_jax_regression.py).
-export XLA_FLAGS := --xla_cpu_experimental_ynn_fusion_type= $(XLA_FLAGS)
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)

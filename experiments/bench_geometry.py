@@ -1,8 +1,8 @@
 """Triangulation throughput: our DLT kernels against cv2.triangulatePoints and a NumPy SVD loop.
 
-    XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= .venv/bin/python -m experiments.bench_geometry --json
+    .venv/bin/python -m experiments.bench_geometry --json      (or: make bench)
 
-(``make bench`` sets the flag.) Prints one JSON object (or a table without ``--json``): two-view
+Prints one JSON object (or a table without ``--json``): two-view
 triangulation of ``--points`` points with the closed-form and the SVD kernel (jitted, timed after
 compilation, best of ``--repeats``) next to ``cv2.triangulatePoints``, and five-view DLT next to a
 plain NumPy SVD loop (run on at most 5000 points and reported as points/s). Scene: K with f = 800-1000
@@ -21,6 +21,8 @@ from typing import Callable
 import cv2
 import jax
 import numpy as np
+
+from geometry import triangulate
 
 _NUMPY_LOOP_POINTS = 5000
 
@@ -72,8 +74,6 @@ def numpy_svd_loop(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 
 def run(num_points: int = 100_000, repeats: int = 7, dtype: str = "float64", seed: int = 0) -> dict:
     """All measurements as one flat dict (points/s, speedups, max abs 3D differences in metres)."""
-    from geometry import triangulate
-
     result: dict = {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),

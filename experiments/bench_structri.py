@@ -42,7 +42,7 @@ def make_problem(cfg: Config):
     """Random near-T-poses (metres, y-up), the spec's round ring, noisy 2D points."""
     rng = np.random.default_rng(cfg.seed)
     by_child = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
-                "spine": 0.23, "thorax": 0.25, "neck": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
+                "spine": 0.23, "thorax": 0.25, "neck_nose": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
                 "r_elbow": 0.28, "l_elbow": 0.28, "r_wrist": 0.25, "l_wrist": 0.25}
     lengths = np.array([by_child[H36M17.joints[c]] for _, c in H36M17.bones])
     bone_of = {c: k for k, (_, c) in enumerate(H36M17.bones)}

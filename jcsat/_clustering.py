@@ -214,7 +214,7 @@ def _cluster_frames(cloud: JointCloud, counts, key, config: ClusterConfig) -> Fr
         weight = cloud.valid[:, _MID_HIP].reshape(-1).astype(hips.dtype)
         trim = config.joint_radius[_MID_HIP] if config.trimmed_kmeans else None
         result = kmeans(hips, weight, k, key, config.max_people, config.kmeans_restarts, config.kmeans_iterations, trim)
-        diff = cloud.point[..., None, :] - result.centres  # (P, J, C, C, K, 3)
+        diff = cloud.point[..., None, :] - result.centres[None, None, None, None]  # (P, J, C, C, K, 3)
         distance = jnp.where(result.active, jnp.sqrt(jnp.sum(diff * diff, axis=-1)), jnp.inf)
         nearest = jnp.argmin(distance, axis=-1)
         close = jnp.min(distance, axis=-1) < radius[None, :, None, None]
@@ -295,9 +295,10 @@ def _top_candidates(cloud: JointCloud, label, num_slots: int, per_pair: int):
     flat_weight = weight.reshape(f, p, j, c * c)
     flat_point = cloud.point.reshape(f, p, j, c * c, 3)
     slots = jnp.arange(num_slots)
-    ranked = jnp.where(flat_label[..., None, :] == slots[:, None], flat_weight[..., None, :], -1.0)  # (F,P,J,K,CC)
+    ranked = jnp.where(flat_label[..., None, :] == slots.reshape(1, 1, 1, -1, 1), flat_weight[..., None, :], -1.0)  # (F,P,J,K,CC)
     top, index = jax.lax.top_k(ranked, min(per_pair, c * c))
     points = jnp.take_along_axis(flat_point[..., None, :, :], index[..., None], axis=-2)  # (F,P,J,K,M,3)
+    points = jnp.where((top >= 0)[..., None], points, 0.0)
     return jnp.moveaxis(points, (3, 4), (1, 3)), jnp.moveaxis(top >= 0, (3, 4), (1, 3))  # (F,K,P,M,J,...)
 
 

@@ -93,6 +93,8 @@ class _Tree(NamedTuple):
     path: np.ndarray  # (J, n): 1 where bone k lies on the path root -> joint j
     joint_bones: np.ndarray  # (J, deg): bones touching joint j, padded with n (no bone)
     joint_signs: np.ndarray  # (J, deg): +1 where j is the bone's child, -1 its parent, 0 padding
+    via_child: np.ndarray  # (n, n): [child k == child l] - [parent k == child l]
+    via_parent: np.ndarray  # (n, n): [parent k == parent l] - [child k == parent l]
 
 
 @functools.cache
@@ -121,7 +123,9 @@ def _tree(skeleton: Skeleton) -> _Tree:
             p = skeleton.parents[j]
             path[j] = path[p]
             path[j, bone_of_child[j]] = 1.0
-    return _Tree(skeleton.root, parent, child, path, joint_bones, joint_signs)
+    via_child = (child[:, None] == child[None]).astype(float) - (parent[:, None] == child[None])
+    via_parent = (parent[:, None] == parent[None]).astype(float) - (child[:, None] == parent[None])
+    return _Tree(skeleton.root, parent, child, path, joint_bones, joint_signs, via_child, via_parent)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -181,25 +185,37 @@ def _apply_a_inverse(tree: _Tree, D_inv: Float[Array, "joints 3 3 F"], v: Float[
     return z[tree.child] - z[tree.parent]
 
 
-def _apply_sca_operator(tree, D_inv, lambdas: list, v: Float[Array, "bones 3 *cols F"]):
-    """``T^L v`` for SCA's accumulated first-order inverse ``T^l = T^(l-1) - 2 T^(l-1) Lambda_l T^(l-1)``.
+def _apply_a_inverse_to_bone_columns(tree: _Tree, D_inv: Float[Array, "joints 3 3 F"],
+                                     b: Float[Array, "bones 3 F"]) -> Float[Array, "bones 3 bones F"]:
+    """``A^-1 diag(b) D31``: column l is ``A^-1`` of the vector holding ``b_l`` at bone l only.
+
+    Such a vector reaches two joints (``+b_l`` at the child, ``-b_l`` at the parent), so column l is
+    nonzero only at the bones touching them: two 3x3 products per bone instead of a dense apply."""
+    at_child = _matvec3(D_inv[tree.child], b)
+    at_parent = _matvec3(D_inv[tree.parent], b)
+    via_child = jnp.asarray(tree.via_child, b.dtype)[:, None, :, None]
+    via_parent = jnp.asarray(tree.via_parent, b.dtype)[:, None, :, None]
+    return via_child * jnp.moveaxis(at_child, 0, 1)[None] + via_parent * jnp.moveaxis(at_parent, 0, 1)[None]
+
+
+def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]) -> Float[Array, "bones 3 bones F"]:
+    """``T^L diag(b) D31`` for SCA's accumulated first-order inverse ``T^l = T^(l-1) - 2 T^(l-1) Lambda_l T^(l-1)``.
 
     ``T^L`` is a polynomial of degree ``2^L`` in ``A^-1``, and forming it densely costs ``(3n)^3`` per
-    level (slower than the whole matrix-free solve for the paper's N = 3). So ``T^L v`` is evaluated
-    matrix-free, depth first over the binary recursion tree: ``2^L`` applications of ``A^-1`` in a
-    ``fori_loop`` whose body carries one pending partial result per level. The traced graph is
-    O(L), not O(2^L)."""
+    level (slower than the whole matrix-free solve for the paper's N = 3). So it is applied
+    matrix-free, depth first over the binary recursion tree: ``2^L`` applications of ``A^-1`` (the
+    first on the sparse columns) in a ``fori_loop`` whose body carries one pending partial result
+    per level. The traced graph is O(L), not O(2^L)."""
+    first = _apply_a_inverse_to_bone_columns(tree, D_inv, b)
     level = len(lambdas)
     if level == 0:
-        return _apply_a_inverse(tree, D_inv, v)
-    shape = (lambdas[0].shape[0],) + (1,) * (v.ndim - 2) + lambdas[0].shape[1:]
+        return first
+    shape = (lambdas[0].shape[0], 1, 1) + lambdas[0].shape[1:]
     scales = [lam.reshape(shape) for lam in lambdas]
 
-    def leaf(index, state):
-        x, pending, _ = state
-        r = _apply_a_inverse(tree, D_inv, x)
-        # Carry up the tree: a 0 bit ends the first call of that level (its input for the second
-        # call is Lambda r); a 1 bit ends the second call (result = first - 2 second).
+    def carry_up(index, r, x, pending):
+        # A 0 bit ends the first call of that level (the second call's input is Lambda r);
+        # a 1 bit ends the second call (result = first - 2 second).
         done = jnp.array(False)
         pending = list(pending)
         for j in range(level):
@@ -211,8 +227,13 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, v: Float[Array, "bones 3 *co
             done = done | first_ends
         return x, tuple(pending), r
 
-    zeros = jnp.zeros_like(v)
-    _, _, result = jax.lax.fori_loop(0, 2**level, leaf, (v, (zeros,) * level, zeros))
+    def leaf(index, state):
+        x, pending, _ = state
+        return carry_up(index, _apply_a_inverse(tree, D_inv, x), x, pending)
+
+    zeros = jnp.zeros_like(first)
+    state = carry_up(0, first, zeros, (zeros,) * level)
+    _, _, result = jax.lax.fori_loop(1, 2**level, leaf, state)
     return result
 
 
@@ -265,20 +286,25 @@ def _target_sq(bones, lengths, step: int, n_steps: int, schedule: str):
 
 def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[Array, "bones #F"],
                      n_steps: int, schedule: str):
-    """Algorithm 1 with the code's ``T^(i-1)`` in the multiplier system; returns (b, sum lambda, ok)."""
-    n = b0.shape[0]
-    eye = jnp.eye(n, dtype=b0.dtype)[:, None, :, None]
+    """Algorithm 1 with the code's ``T^(i-1)`` in the multiplier system.
+
+    Returns ``(b, sum lambda, ok)`` of the N-step run and of a single ST step (which shares the
+    first step's multiplier system: same ``b0``, final targets)."""
     b, lambdas, solvable = b0, [], jnp.array(True)
     for step in range(1, n_steps + 1):
         rhs = jnp.sum(b**2, axis=1) - _target_sq(b, lengths, step, n_steps, schedule)
-        columns = b[:, :, None] * eye  # diag(b) D31, (n, 3, n, F)
-        U = _apply_sca_operator(tree, D_inv, lambdas, columns)
+        U = _apply_sca_operator(tree, D_inv, lambdas, b)  # T^(step-1) diag(b) D31, (n, 3, n, F)
         system = jnp.sum(b[:, :, None] * U, axis=1)
-        lam = _solve_symmetric(0.5 * (system + jnp.swapaxes(system, 0, 1)), rhs) / 4.0
+        system = 0.5 * (system + jnp.swapaxes(system, 0, 1))
+        lam = _solve_symmetric(system, rhs) / 4.0
+        if step == 1:
+            lam_single = _solve_symmetric(system, jnp.sum(b**2, axis=1) - lengths**2) / 4.0
+            single = (b0 - 2.0 * jnp.sum(U * lam_single[None, None], axis=2), lam_single,
+                      jnp.all(jnp.isfinite(lam_single), axis=0))
         solvable &= jnp.all(jnp.isfinite(lam), axis=0)
         b = b - 2.0 * jnp.sum(U * lam[None, None], axis=2)
         lambdas.append(lam)
-    return b, sum(lambdas), solvable
+    return (b, sum(lambdas), solvable), single
 
 
 def _sca_exact(A, beta, b0, lengths, n_steps: int, schedule: str, newton_iterations: int = 2):
@@ -387,9 +413,8 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
     b0 = ls_bones
     single = jnp.zeros(underdetermined.shape, bool)
     if method == "st":
-        b, lam, solvable = _sca_first_order(tree, D_inv, b0, lengths, n_steps, schedule)
+        (b, lam, solvable), (b1, lam1, solvable1) = _sca_first_order(tree, D_inv, b0, lengths, n_steps, schedule)
         if n_steps > 1:
-            b1, lam1, solvable1 = _sca_first_order(tree, D_inv, b0, lengths, 1, schedule)
             single = min_rcond < degenerate_rcond
             b, lam, solvable = (jnp.where(single[None, None], b1, b), jnp.where(single[None], lam1, lam),
                                 jnp.where(single, solvable1, solvable))

@@ -1,19 +1,16 @@
 """Test configuration: strict numerics and the data folder.
 
-The XLA flag must be in the environment before jax initialises its backend (see
-``tests/test_jax_regression.py``), so it is set before anything imports jax.
+``geometry`` is imported before any computation: it sets the XLA flag that must be in the environment before jax
+initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_regression.py``).
 """
 
 import os
+from pathlib import Path
 
-_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+import jax
+import pytest
 
-from pathlib import Path  # noqa: E402
-
-import jax  # noqa: E402
-import pytest  # noqa: E402
+import geometry  # noqa: F401  (switches off jaxlib 0.10.2's faulty CPU fusion before jax computes)
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")

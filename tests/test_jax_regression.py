@@ -3,8 +3,8 @@
 jaxlib 0.10.2 routes some jitted reductions to its new YNNPACK fusion and returns wrong numbers,
 with no error, once the batch is larger than about 10k (jax-ml/jax#39103; notes in
 /work/shared/specs/jax_notes.md, section 1). The project disables that fusion with
-``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=`` (Makefile, tests/conftest.py) and excludes
-the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
+``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=``, set by importing ``geometry``
+(geometry/_jax_guard.py), and excludes the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
 """
 
 import os
@@ -17,9 +17,8 @@ import numpy as np
 import pytest
 
 from geometry import triangulate
+from geometry._jax_guard import YNN_FUSION_OFF as WORKAROUND
 from geometry._triangulate import _triangulate_flat
-
-WORKAROUND = "--xla_cpu_experimental_ynn_fusion_type="
 
 # Minimal repro of jax-ml/jax#39103: sum over axis 0 of a[:, :, None, :] * a[:, None, :, :].
 REPRO = """
@@ -52,6 +51,15 @@ def test_installed_jaxlib_has_no_ynn_fusion_miscompilation():
     env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
     done = subprocess.run([sys.executable, "-c", REPRO], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, f"installed jaxlib miscompiles the repro without {WORKAROUND}:\n{done.stdout}{done.stderr}"
+
+
+def test_importing_geometry_sets_the_workaround_before_jax_computes():
+    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
+    code = "import os, geometry; print(os.environ['XLA_FLAGS'])"
+    done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "XLA_FLAGS": flags},
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert WORKAROUND in done.stdout.split()
 
 
 def test_repro_is_exact_with_the_project_configuration():
