@@ -13,22 +13,15 @@ runs on a seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, 
 
 from __future__ import annotations
 
-import os
+import argparse
+import dataclasses
+import json
+from pathlib import Path
 
-# Must precede jax's backend initialisation (jaxlib 0.10.2 miscompile, tests/test_jax_regression.py).
-_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+import jax
+from tqdm import tqdm
 
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import json  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import jax  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-import jcsat  # noqa: E402
+import jcsat
 
 _STAGES = ("data", "geometric", "evaluation", "plot")
 

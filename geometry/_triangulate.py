@@ -159,8 +159,10 @@ def _dlt_problem(
             row_scales.append(scale)
     upper = {(i, j): sum(row[i] * row[j] for row in rows) for i in range(4) for j in range(i, 4)}
     trace = upper[0, 0] + upper[1, 1] + upper[2, 2] + upper[3, 3]
-    safe_trace = jnp.where(trace > 0, trace, 1)
-    normal = [[upper[min(i, j), max(i, j)] / safe_trace for j in range(4)] for i in range(4)]
+    # One reciprocal, then products: with ten divisions XLA stored each quotient separately and
+    # recomputed the rows and the trace for each (68 instead of 59 fused loops, 1.2-1.5x slower).
+    inverse_trace = 1 / jnp.where(trace > 0, trace, 1)
+    normal = [[upper[min(i, j), max(i, j)] * inverse_trace for j in range(4)] for i in range(4)]
     num_views = jnp.sum((weights > 0).astype(jnp.int32))
     return _DltProblem(rows, row_scales, normal, _adjugate_4x4(normal), num_views)
 

@@ -19,6 +19,7 @@ from ._experiment import METHODS as METHODS
 from ._experiment import ShelfExperimentConfig as ShelfExperimentConfig
 from ._experiment import ShelfExperimentResult as ShelfExperimentResult
 from ._experiment import run_shelf_experiment as run_shelf_experiment
+from ._experiment import synthetic_validation as synthetic_validation
 from ._geometric import GeometricConfig as GeometricConfig
 from ._geometric import GeometricPoses as GeometricPoses
 from ._geometric import consensus_joint as consensus_joint
@@ -39,6 +40,6 @@ __all__ = [
     "BODY25_JOINT_RADIUS", "BaselineConfig", "BaselineResult", "ClusterConfig", "FrameClusters",
     "GeometricConfig", "GeometricPoses", "METHODS", "ShelfExperimentConfig", "ShelfExperimentResult", "JointCloud", "JointCloudConfig", "KMeansResult", "PersonJointCloud",
     "build_joint_cloud", "cluster_frames", "consensus_joint", "fill_missing", "geometric_poses", "joint_cloud_frame",
-    "kmeans", "numpy_joint_cloud_frame", "people_count", "person_joint_cloud", "run_geometric_baseline", "run_shelf_experiment", "track_centres",
+    "kmeans", "numpy_joint_cloud_frame", "people_count", "person_joint_cloud", "run_geometric_baseline", "run_shelf_experiment", "synthetic_validation", "track_centres",
     "triangulate_candidate_pair", "view_pairs", "window_frames",
 ]

@@ -38,6 +38,13 @@ class BaselineConfig:
     geometric: GeometricConfig = GeometricConfig()
     seed: int = 0
     """K-Means key: ``jax.random.key(seed)``."""
+    min_track_frames: int = 5
+    """Tracks present in fewer frames than this are dropped from the predictions: a short-lived
+    track is a spurious cluster (cross-person candidates, a split person), not a new person."""
+    max_gap_frames: int = 5
+    """A track absent for at most this many frames between two frames where it is present is
+    bridged: the gap frames take each joint from the nearest frame that has it
+    (:func:`~jcsat.fill_missing`). A person whose MidHip goes undetected for a moment keeps a pose."""
     max_candidates: int | None = None
     """Pad every view and joint type to this many 2D candidates (default: the largest count). A fixed
     size lets runs of different scenes share one compilation."""
@@ -45,8 +52,8 @@ class BaselineConfig:
 
 class BaselineResult(NamedTuple):
     predictions: mocap.PosePredictions
-    """Shelf15 poses, one row per (frame, track) where the track is present; joints never seen by
-    the track are (0, 0, 0)."""
+    """Shelf15 poses, one row per (frame, track) where the track is present and the track lasts at
+    least ``min_track_frames``; joints never seen by the track are (0, 0, 0)."""
     body25: Float[np.ndarray, "T F 25 3"]
     """Per track, after :func:`~jcsat.fill_missing` (metres)."""
     body25_valid: Bool[np.ndarray, "T F 25"]
@@ -64,6 +71,17 @@ def _timed(seconds: dict[str, float], name: str, fn, *args):
     out = jax.block_until_ready(fn(*args))
     seconds[name] = time.perf_counter() - start
     return out
+
+
+def _bridge_gaps(present: Bool[np.ndarray, "T F"], max_gap: int) -> Bool[np.ndarray, "T F"]:
+    """``present`` with every run of at most ``max_gap`` absent frames between two present ones set."""
+    bridged = present.copy()
+    for track in range(present.shape[0]):
+        seen = np.flatnonzero(present[track])
+        for first, last in zip(seen[:-1], seen[1:]):
+            if 1 < last - first <= max_gap + 1:
+                bridged[track, first + 1:last] = True
+    return bridged
 
 
 def run_geometric_baseline(
@@ -99,12 +117,14 @@ def run_geometric_baseline(
     frame_of, slot_of = np.nonzero(track_of >= 0)
     body25[track_of[frame_of, slot_of], frame_of] = np.asarray(poses.body25)[frame_of, slot_of]
     valid[track_of[frame_of, slot_of], frame_of] = np.asarray(poses.valid)[frame_of, slot_of]
+    present = _bridge_gaps(person_cloud.present, config.max_gap_frames)
     for t in range(num_tracks):
-        body25[t], valid[t] = fill_missing(body25[t], valid[t], person_cloud.present[t])
+        body25[t], valid[t] = fill_missing(body25[t], valid[t], present[t])
     shelf15 = np.asarray(geometry.to_shelf15(body25, BODY25))
     shelf_valid = np.asarray(geometry.to_shelf15_validity(valid, BODY25))
     shelf15 = np.where(shelf_valid[..., None], shelf15, 0.0)
-    track, frame = np.nonzero(person_cloud.present.T)[::-1]  # rows ordered by frame, then track
+    kept = present & (person_cloud.present.sum(axis=1) >= config.min_track_frames)[:, None]
+    track, frame = np.nonzero(kept.T)[::-1]  # rows ordered by frame, then track
     order = np.lexsort((track, frame))
     track, frame = track[order], frame[order]
     predictions = mocap.PosePredictions.create(
@@ -112,5 +132,5 @@ def run_geometric_baseline(
         score=valid[track, frame].mean(axis=-1),
     )
     seconds["assemble"] = time.perf_counter() - start
-    return BaselineResult(predictions, body25, valid, person_cloud.present, cloud, clusters, track_of,
+    return BaselineResult(predictions, body25, valid, present, cloud, clusters, track_of,
                           person_cloud, seconds)

@@ -1,5 +1,10 @@
 """One-frame figure: a person's Joint Cloud, the baseline skeletons and the ground truth in 3D, and their
-reprojection into every view (matplotlib, Agg backend)."""
+reprojection into every view (matplotlib, Agg backend).
+
+Ground truth is drawn thick and black under the predictions; a predicted track is coloured when it
+matches a ground-truth person (mean joint distance below :data:`MATCH_DISTANCE_M`) and drawn thin,
+grey and dotted (labelled "unmatched") otherwise.
+"""
 
 from __future__ import annotations
 
@@ -12,7 +17,11 @@ from geometry import SHELF15, Camera
 
 from ._pipeline import BaselineResult
 
-__all__ = ["plot_frame"]
+__all__ = ["plot_frame", "MATCH_DISTANCE_M", "matched_tracks"]
+
+MATCH_DISTANCE_M = 0.5
+"""Metres: a track matches a ground-truth person when their mean Shelf15 joint distance is below this
+(the JCSAT protocol's gate)."""
 
 _SHELF_LINES = [(SHELF15.index(a), SHELF15.index(b)) for _, a, b in SHELF15.pcp_parts]
 
@@ -21,6 +30,33 @@ def _skeleton_lines(ax, joints: np.ndarray, dims: int, **style) -> None:
     for a, b in _SHELF_LINES:
         if np.any(joints[a] != 0) and np.any(joints[b] != 0):
             ax.plot(*(joints[[a, b], d] for d in range(dims)), **style)
+
+
+def _track_shelf15(result: BaselineResult, frame: int) -> np.ndarray:
+    """(T, 15, 3) Shelf15 joints of every track in ``frame`` (0 where the track lacks the joint)."""
+    shelf15 = np.asarray(geometry.to_shelf15(result.body25[:, frame], geometry.BODY25))
+    valid = np.asarray(geometry.to_shelf15_validity(result.body25_valid[:, frame], geometry.BODY25))
+    return np.where(valid[..., None], shelf15, 0.0)
+
+
+def matched_tracks(result: BaselineResult, frame: int, ground_truth: np.ndarray) -> dict[int, int]:
+    """Output tracks present in ``frame`` that match a ground-truth person: ``{track: person}``.
+
+    Only tracks in the predictions count (short-lived tracks are not output); each ground-truth
+    person takes its nearest track by mean joint distance if below :data:`MATCH_DISTANCE_M`.
+    """
+    output = set(np.unique(result.predictions.person).tolist())
+    tracks = [t for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
+    if not tracks or not len(ground_truth):
+        return {}
+    joints = _track_shelf15(result, frame)[tracks]
+    distance = np.linalg.norm(joints[:, None] - ground_truth[None], axis=-1).mean(-1)  # (tracks, people)
+    matches = {}
+    for person in range(len(ground_truth)):
+        best = int(np.argmin(distance[:, person]))
+        if distance[best, person] < MATCH_DISTANCE_M:
+            matches[int(tracks[best])] = person
+    return matches
 
 
 def plot_frame(
@@ -43,7 +79,9 @@ def plot_frame(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    present = np.flatnonzero(result.present[:, frame])
+    output = set(np.unique(result.predictions.person).tolist())
+    present = [int(t) for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
+    matches = matched_tracks(result, frame, ground_truth)
     label = np.asarray(result.clusters.label[frame])  # (P, J, C, C)
     slots = np.flatnonzero(np.asarray(result.clusters.active[frame]))
     counts = [(label == s).sum() for s in slots]
@@ -51,23 +89,31 @@ def plot_frame(
     chosen = label == slot
     points = np.asarray(result.cloud.point[frame])[chosen]  # (n, 3)
     joint_type = np.nonzero(chosen)[1]
-    shelf15 = np.asarray(geometry.to_shelf15(result.body25[:, frame], geometry.BODY25))
-    shelf15 = np.where(np.asarray(geometry.to_shelf15_validity(result.body25_valid[:, frame], geometry.BODY25))[..., None],
-                       shelf15, 0.0)
+    shelf15 = _track_shelf15(result, frame)
+
+    def track_style(t: int) -> dict:
+        if t in matches:
+            return {"color": f"C{matches[t]}", "linewidth": 1.8}
+        return {"color": "0.5", "linestyle": ":", "linewidth": 1.0}
+
+    gt_style = {"color": "k", "linewidth": 4.0, "alpha": 0.45}
 
     num_views = rig.K.shape[0]
     fig = plt.figure(figsize=(16, 9))
     colours = plt.get_cmap("tab20", 25)(np.arange(25))
     ax = fig.add_subplot(2, 3, 1, projection="3d")
     ax.scatter(*points.T, c=colours[joint_type], s=6, alpha=0.6, label="Joint Cloud (one person)")
-    for i, t in enumerate(present):
-        _skeleton_lines(ax, shelf15[t], 3, color=f"C{i}", linewidth=2)
     for person in ground_truth:
-        _skeleton_lines(ax, person, 3, color="k", linestyle="--", linewidth=1)
+        _skeleton_lines(ax, person, 3, **gt_style)
+    for t in present:
+        _skeleton_lines(ax, shelf15[t], 3, **track_style(t))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
-    ax.set_title("3D: cloud (by joint type), baseline (colour), GT (black dashed)", fontsize=9)
+    spurious = len(present) - len(matches)
+    ax.set_title(f"3D: one person's Joint Cloud (by joint type); GT (thick black); tracks matched to GT "
+                 f"(colour of the GT person: {len(matches)}/{len(ground_truth)}); unmatched (grey dotted): {spurious}",
+                 fontsize=8, wrap=True)
 
     for v in range(min(num_views, 5)):  # the grid has room for five views (Shelf)
         camera = rig.select(v)
@@ -76,14 +122,14 @@ def plot_frame(
         real = padded.mask[frame, v]
         xy = padded.xy[frame, v][real]
         axv.scatter(xy[:, 0], xy[:, 1], s=4, c="0.6")
-        for i, t in enumerate(present):
-            _skeleton_lines(axv, np.asarray(geometry.project(camera, shelf15[t])), 2, color=f"C{i}", linewidth=2)
         for person in ground_truth:
-            _skeleton_lines(axv, np.asarray(geometry.project(camera, person)), 2, color="k", linestyle="--", linewidth=1)
+            _skeleton_lines(axv, np.asarray(geometry.project(camera, person)), 2, **gt_style)
+        for t in present:
+            _skeleton_lines(axv, np.asarray(geometry.project(camera, shelf15[t])), 2, **track_style(t))
         axv.set_xlim(0, width)
         axv.set_ylim(height, 0)
         axv.set_aspect("equal")
-        axv.set_title(f"view {v}: detections (grey), baseline, GT", fontsize=9)
+        axv.set_title(f"view {v}: detections (grey dots), GT (thick black), matched tracks (colour)", fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=80)

@@ -7,8 +7,9 @@ real Shelf loader). The model is built from geometry, not from uniform dropout:
 - **Occlusion by limbs.** Every body is a set of 3D capsules (torso, head, upper/lower arms and legs,
   feet; :data:`BODY25_CAPSULES`). A joint is occluded in a view when a capsule of another person, or
   a non-adjacent capsule of the same person, covers the joint's projection and lies in front of it
-  along the camera's depth. Occlusion lowers confidences, PAF scores and position accuracy, and makes
-  the joint likely to be dropped.
+  along the camera's depth. Occlusion lowers confidences, PAF scores and position accuracy. Occlusion
+  by another person makes the joint likely to be dropped; self-occlusion rarely does (OpenPose infers
+  hidden body joints from the visible limbs), except for the face seen from behind.
 - **Image geometry.** Joints behind the camera or outside the image are not reported; confidences drop
   near the image border and for small (distant) people; pixel noise scales with the person's apparent
   height in the image.
@@ -60,6 +61,10 @@ _FACE = ("nose", "r_eye", "l_eye", "r_ear", "l_ear")
 _OCCLUDED_DROP = tuple(
     0.95 if name in _FACE else 0.45 if name.endswith("hip") else 0.8 for name in BODY25.joints
 )
+# OpenPose infers a body joint hidden behind the person's own body from the visible limbs (real
+# Shelf: shoulders and hips are reported in ~90% of (person, view) pairs, wrists ~70%), but never
+# reports a face seen from behind.
+_SELF_OCCLUDED_DROP = tuple(0.95 if name in _FACE else 0.4 for name in BODY25.joints)
 
 # Mean confidence per BODY25 joint type of an unoccluded, large, central joint. Chosen so that the
 # simulated per-type means track the real Shelf OpenPose means (torso/face ~0.78-0.80, hips ~0.63,
@@ -119,9 +124,15 @@ class DetectorConfig:
     joint_dropout: float = 0.03
     """Probability that a visible joint is not reported at all (missed peak)."""
     occluded_drop_probabilities: tuple[float, ...] = _OCCLUDED_DROP
-    """Extra drop probability of each BODY25 joint type when fully occluded (scaled by the occlusion
-    in [0, 1]). OpenPose hallucinates hidden hips from context but never reports a face seen from
-    behind: by default 0.45 for the hips, 0.95 for the eyes, ears and nose, 0.8 otherwise."""
+    """Extra drop probability of each BODY25 joint type when fully hidden by OTHER people (scaled by
+    :attr:`ViewGeometry.others_occlusion` in [0, 1]). OpenPose hallucinates hidden hips from context
+    but never reports a hidden face: by default 0.45 for the hips, 0.95 for the eyes, ears and nose,
+    0.8 otherwise."""
+    self_occluded_drop_probabilities: tuple[float, ...] = _SELF_OCCLUDED_DROP
+    """Drop probability of each BODY25 joint type when fully hidden by the person's OWN body
+    (:attr:`ViewGeometry.self_occlusion`); the drop probability is the larger of this term and the
+    :attr:`occluded_drop_probabilities` term for the occlusion by other people. By default 0.95 for
+    the face (seen from behind) and 0.4 otherwise."""
     person_miss_probability: float = 0.03
     """Probability that a clearly visible person is missing entirely from one view."""
     small_person_miss_probability: float = 0.3
@@ -189,6 +200,10 @@ class DetectorConfig:
             0.0 <= p <= 1.0 for p in self.occluded_drop_probabilities
         ):
             raise ValueError(f"occluded_drop_probabilities needs {_NUM_JOINTS} values in [0, 1] (BODY25)")
+        if len(self.self_occluded_drop_probabilities) != _NUM_JOINTS or not all(
+            0.0 <= p <= 1.0 for p in self.self_occluded_drop_probabilities
+        ):
+            raise ValueError(f"self_occluded_drop_probabilities needs {_NUM_JOINTS} values in [0, 1] (BODY25)")
         probabilities = (
             "outlier_probability", "joint_dropout", "person_miss_probability",
             "small_person_miss_probability", "occluded_person_miss_probability",
@@ -217,7 +232,8 @@ class DetectorConfig:
         at its exact projection (confidences and PAFs still follow the geometry, noise-free)."""
         return cls(
             pixel_noise=0.0, outlier_probability=0.0, score_noise=0.0, score_threshold=0.0,
-            joint_dropout=0.0, occluded_drop_probabilities=(0.0,) * _NUM_JOINTS, person_miss_probability=0.0,
+            joint_dropout=0.0, occluded_drop_probabilities=(0.0,) * _NUM_JOINTS,
+            self_occluded_drop_probabilities=(0.0,) * _NUM_JOINTS, person_miss_probability=0.0,
             small_person_miss_probability=0.0, occluded_person_miss_probability=0.0,
             truncated_person_miss_probability=0.0, left_right_swap_probability=0.0,
             side_view_swap_probability=0.0, identity_swap_probability=0.0, paf_noise=0.0,
@@ -249,8 +265,8 @@ BODY25_CAPSULES: tuple[Capsule, ...] = (
     Capsule("l_upper_arm", ("l_shoulder",), ("l_elbow",), 0.05, ("l_shoulder", "l_elbow")),
     Capsule("r_forearm", ("r_elbow",), ("r_wrist",), 0.04, ("r_elbow", "r_wrist")),
     Capsule("l_forearm", ("l_elbow",), ("l_wrist",), 0.04, ("l_elbow", "l_wrist")),
-    Capsule("r_thigh", ("r_hip",), ("r_knee",), 0.075, ("r_hip", "r_knee")),
-    Capsule("l_thigh", ("l_hip",), ("l_knee",), 0.075, ("l_hip", "l_knee")),
+    Capsule("r_thigh", ("r_hip",), ("r_knee",), 0.075, ("r_hip", "r_knee", "mid_hip")),
+    Capsule("l_thigh", ("l_hip",), ("l_knee",), 0.075, ("l_hip", "l_knee", "mid_hip")),
     Capsule("r_shin", ("r_knee",), ("r_ankle",), 0.055, ("r_knee", "r_ankle", "r_heel")),
     Capsule("l_shin", ("l_knee",), ("l_ankle",), 0.055, ("l_knee", "l_ankle", "l_heel")),
     Capsule("r_foot", ("r_ankle",), ("r_big_toe",), 0.04, ("r_ankle", "r_big_toe", "r_small_toe", "r_heel")),
@@ -314,6 +330,11 @@ class ViewGeometry(NamedTuple):
     """``|cos|`` of the angle between the person's left-right axis and the viewing ray, in [0, 1]:
     0 seen from the front or back, 1 from the side."""
 
+    self_occlusion: Float[np.ndarray, "frames views people 25"]
+    """Occlusion by the person's own capsules, in [0, 1] (``occlusion`` is the larger of the two parts)."""
+    others_occlusion: Float[np.ndarray, "frames views people 25"]
+    """Occlusion by other people's capsules, in [0, 1]."""
+
     @property
     def visible(self) -> Bool[np.ndarray, "frames views people 25"]:
         """Inside the image and less than half occluded: what an ideal detector could see."""
@@ -323,11 +344,11 @@ class ViewGeometry(NamedTuple):
 def _camera_frame_kernel(
     camera: Camera, people: Float[Array, "people 25 3"], depth_margin: Float[ArrayLike, ""], edge: Float[ArrayLike, ""]
 ) -> tuple[
-    Float[Array, "people 25 2"], Float[Array, "people 25"], Float[Array, "people 25"], Float[Array, " people"],
-    Float[Array, " people"],
+    Float[Array, "people 25 2"], Float[Array, "people 25"], Float[Array, "people 25"], Float[Array, "people 25"],
+    Float[Array, " people"], Float[Array, " people"],
 ]:
-    """Pixels, depths (metres), occlusion in [0, 1], apparent height (pixels) and sideness of every
-    person in one camera and one frame."""
+    """Pixels, depths (metres), occlusion by the person's own and by other people's capsules (each
+    in [0, 1]), apparent height (pixels) and sideness of every person in one camera and one frame."""
     dtype = people.dtype
     pixels = geometry.project(camera, people)
     depth = geometry.depth(camera, people)
@@ -355,7 +376,9 @@ def _camera_frame_kernel(
     n_people = people.shape[0]
     same_person = jnp.eye(n_people, dtype=bool)[:, None, :, None]
     allowed = jnp.logical_not(same_person & jnp.asarray(_SELF_EXEMPT)[None, :, None, :])
-    occlusion = jnp.max(jnp.where(allowed, coverage * behind, 0.0), axis=(2, 3))
+    covered = jnp.where(allowed, coverage * behind, 0.0)
+    self_occlusion = jnp.max(jnp.where(same_person, covered, 0.0), axis=(2, 3))
+    others_occlusion = jnp.max(jnp.where(same_person, 0.0, covered), axis=(2, 3))
 
     def bone(a: str, b: str) -> Float[Array, " people"]:
         d = people[:, _J(a)] - people[:, _J(b)]
@@ -371,7 +394,7 @@ def _camera_frame_kernel(
     cosine = jnp.sum(lateral * ray, axis=-1) / jnp.maximum(
         jnp.sqrt(jnp.sum(lateral * lateral, axis=-1) * jnp.sum(ray * ray, axis=-1)), 1e-12
     )
-    return pixels, depth, occlusion, apparent_height, jnp.abs(cosine)
+    return pixels, depth, self_occlusion, others_occlusion, apparent_height, jnp.abs(cosine)
 
 
 _FRAME_CHUNK = 32
@@ -403,11 +426,12 @@ def view_geometry(
         chunk = np.concatenate([chunk, np.repeat(chunk[-1:], _FRAME_CHUNK - chunk.shape[0], axis=0)])
         out = _view_geometry_jit(rig, chunk, config.occlusion_depth_margin, config.occlusion_edge)
         chunks.append([np.asarray(a)[:, : n_frames - first] for a in out])
-    pixels, depth, occlusion, height, side = (np.concatenate(parts, axis=1).swapaxes(0, 1) for parts in zip(*chunks))
+    pixels, depth, self_occlusion, others_occlusion, height, side = (np.concatenate(parts, axis=1).swapaxes(0, 1) for parts in zip(*chunks))
     size = np.asarray(rig.image_size)[None, :, None, None, :]
     in_front = depth > 0.1
     inside = in_front & np.all((pixels >= 0.0) & (pixels <= size - 1.0), axis=-1)
-    return ViewGeometry(pixels, depth, in_front, inside, occlusion, height, side)
+    occlusion = np.maximum(self_occlusion, others_occlusion)
+    return ViewGeometry(pixels, depth, in_front, inside, occlusion, height, side, self_occlusion, others_occlusion)
 
 
 class DetectorEvents(NamedTuple):
@@ -476,6 +500,8 @@ def detect_with_events(
         source = np.where(swapped[..., g, None] & in_group, _SWAP_SOURCE[g], source)
     pixels = np.take_along_axis(geo.pixels, source[..., None], axis=3)
     occlusion = np.take_along_axis(geo.occlusion, source, axis=3)
+    self_occlusion = np.take_along_axis(geo.self_occlusion, source, axis=3)
+    others_occlusion = np.take_along_axis(geo.others_occlusion, source, axis=3)
     in_front = np.take_along_axis(geo.in_front, source, axis=3)
 
     # Whole people missed.
@@ -510,7 +536,10 @@ def detect_with_events(
         + config.score_noise * rng.standard_normal((n_f, n_v, n_p, _NUM_JOINTS))
     )
     score = np.clip(score, 0.0, config.max_score)
-    drop_probability = config.joint_dropout + np.asarray(config.occluded_drop_probabilities) * occlusion
+    drop_probability = config.joint_dropout + np.maximum(
+        np.asarray(config.occluded_drop_probabilities) * others_occlusion,
+        np.asarray(config.self_occluded_drop_probabilities) * self_occlusion,
+    )
     drop = rng.random((n_f, n_v, n_p, _NUM_JOINTS)) < drop_probability
     reported = in_image & ~missed[..., None] & ~drop & (score >= config.score_threshold)
 

@@ -209,3 +209,25 @@ def test_bad_input_raises():
         DetectorConfig(joint_dropout=1.5)
     with pytest.raises(ValueError, match="stacked rig"):
         detect(jax.random.key(0), RING.select(0), crowd(2, np.random.default_rng(0)))
+
+
+def test_occlusion_splits_into_self_and_others():
+    rig = make_rig([(0.0, -4.0, 1.2), (4.0, 0.0, 1.2)])
+    joints = np.broadcast_to(np.stack([person(0.0, -1.0), person(0.0, 0.0)]), (4, 2, 25, 3))
+    geo = view_geometry(rig, joints)
+    np.testing.assert_array_equal(geo.occlusion, np.maximum(geo.self_occlusion, geo.others_occlusion))
+    # Alone, a person's occlusion is its self-occlusion; B behind A (view 0) is hidden by A, not by itself.
+    alone = view_geometry(rig, joints[:, 1:])
+    np.testing.assert_allclose(alone.occlusion, geo.self_occlusion[:, :, 1:], atol=1e-12)
+    assert geo.others_occlusion[0, 0, 1].mean() > 0.6 and geo.others_occlusion[0, 1, 1].max() == 0.0
+    # Facing the camera, the mid-hip between the thigh roots is not hidden by the person's own body.
+    assert geo.self_occlusion[0, 0, 0, BODY25.index("mid_hip")] == 0.0
+    # Self-occlusion rarely drops a body joint; occlusion by another person often does.
+    config = DetectorConfig(person_miss_probability=0.0, occluded_person_miss_probability=0.0)
+    many = np.broadcast_to(joints[:1], (200, 2, 25, 3))
+    _, events = detect_with_events(jax.random.key(1), rig, many, config)
+    hidden = geo.others_occlusion[0, 0, 1] > 0.9
+    body = np.array([name not in ("nose", "r_eye", "l_eye", "r_ear", "l_ear") for name in BODY25.joints])
+    by_others = events.reported[:, 0, 1][:, hidden & body].mean()
+    self_hidden = (geo.self_occlusion[0, 1, 1] > 0.9) & body  # far-side limbs in profile
+    assert self_hidden.sum() >= 3 and events.reported[:, 1, 1][:, self_hidden].mean() > by_others + 0.15

@@ -1,5 +1,6 @@
 """The geometric baseline and the Shelf experiment on small synthetic scenes (real data: one marked test)."""
 
+import dataclasses
 import json
 
 import jax
@@ -79,3 +80,46 @@ def test_experiment_end_to_end(tmp_path):
     assert [e["stage"] for e in events][-1] == "done"
     with pytest.raises(ValueError, match="method"):
         jcsat.ShelfExperimentConfig(method="jcsat")
+
+
+def test_reprojection_check_adds_views_and_rejects_far_detections():
+    rig = mocap.shelf_cameras()
+    truth = np.array([0.3, 0.2, 1.1])
+    projections = geometry.projection_matrix(rig)
+    exact = np.stack([np.asarray(geometry.project(rig.select(v), truth)) for v in range(5)])
+    # Views 0-3: the true detection (index 0) and a far one (index 1); view 4: only a far one.
+    pixels = np.stack([exact, exact + 80.0], axis=1)
+    pixels[4, 0] = exact[4] + 200.0
+    score = np.ones((5, 2))
+    # One candidate from views (0, 1) only: without the check two views are re-triangulated.
+    args = (np.array([truth]), np.ones(1), np.array([[0, 1]]), np.zeros((1, 2), np.int32), pixels, score)
+    args = tuple(map(jnp.asarray, args)) + (projections, 0.1)
+    point, _, views = jcsat.consensus_joint(*args)
+    assert int(views) == 2
+    point, _, views = jcsat.consensus_joint(*args, inlier_pixels=20.0)
+    assert int(views) == 4  # views 0-3 hold an inlier; view 4's only detection is 200 px off
+    np.testing.assert_allclose(point, truth, atol=1e-6)
+    score[:, 0] = 0.1  # below min_score: never an inlier
+    _, _, views = jcsat.consensus_joint(*args[:5], jnp.asarray(score), projections, 0.1, inlier_pixels=20.0)
+    assert int(views) == 2
+
+
+def test_short_tracks_dropped_and_gaps_bridged():
+    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
+                                   detector=mocap.PERFECT_DETECTOR)
+    # Person 1 vanishes from every view in frames 3-4: its track has a two-frame gap.
+    detections = [[d if f not in (3, 4) else mocap.Detections(
+        tuple(c[ids != 1] for c, ids in zip(d.joints, d.person_ids)),
+        tuple(p[np.ix_(ia != 1, ib != 1)] for p, (ia, ib) in zip(
+            d.pafs, [(d.person_ids[a], d.person_ids[b]) for a, b in mocap.BODY25_PAF_PAIRS])),
+        tuple(ids[ids != 1] for ids in d.person_ids)) for d in views] for f, views in enumerate(scene.detections)]
+    bridged = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+                                           dataclasses.replace(CONFIG, max_gap_frames=2, min_track_frames=1))
+    strict = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+                                          dataclasses.replace(CONFIG, max_gap_frames=1, min_track_frames=1))
+    assert bridged.predictions.num_predictions == 2 * FRAMES
+    assert strict.predictions.num_predictions == 2 * FRAMES - 2
+    pruned = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+                                          dataclasses.replace(CONFIG, max_gap_frames=0, min_track_frames=FRAMES))
+    # Only the never-interrupted person is output.
+    assert pruned.predictions.num_predictions == FRAMES and len(np.unique(pruned.predictions.person)) == 1
