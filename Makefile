@@ -17,7 +17,7 @@ demo: install
 	$(PY) -m experiments.shelf_jcsat --out runs/demo
 
 test: install
-	$(PY) -m pytest -q --data-root $(DATA_ROOT)
+	$(PY) -m pytest -q --data-root=$(DATA_ROOT)
 
 bench: install
 	$(PY) -m experiments.bench_geometry --json

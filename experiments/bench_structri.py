@@ -91,8 +91,10 @@ def run(cfg: Config) -> dict:
     st = jax.jit(lambda p: structural_triangulation(p, P, lengths, n_steps=cfg.n_steps).pose)
     out |= _compare("st", st, lambda p: numpy_structural_triangulation(p, P, lengths, n_steps=cfg.n_steps),
                     points, cfg)
-    lem = jax.jit(lambda p: lem_triangulation(p, P).pose)
-    out |= _compare("lem", lem, lambda p: numpy_lem_triangulation(p, P), points, cfg)
+    lem = jax.jit(lambda p: lem_triangulation(p, P).pose)  # metres in and out, the DLT in millimetres
+    P_mm = P.copy()
+    P_mm[:, :, 3] *= 1000.0
+    out |= _compare("lem", lem, lambda p: numpy_lem_triangulation(p, P_mm) / 1000.0, points, cfg)
     jax.block_until_ready(constrained_reference(points[0], P, lengths).pose)  # compile
     t = time.perf_counter()
     for f in range(1, cfg.reference_frames + 1):

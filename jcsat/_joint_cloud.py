@@ -13,6 +13,11 @@ back-projected rays). Padded or filtered entries are kept in the grid with ``val
 (their point is 0). Identity is deliberately ignored: a pair of detections of two different people
 yields a (usually filtered, sometimes not) spurious candidate, as in the paper.
 
+:func:`build_joint_cloud` triangulates only the entries whose two candidates pass the score filter
+(about 16% of the Shelf grid), one view pair at a time so that the pair's cameras are constants of
+the step, and writes the dense grid; :func:`joint_cloud_frame` computes every entry of one frame.
+Both give the same numbers.
+
 The filters are those of the official code (``jcsat_reference.md`` section 3): both detection
 scores above ``min_score`` and the two rays closer than ``max_ray_distance`` metres; in addition the
 point must be in front of both cameras and the two-view DLT well posed (:func:`geometry.triangulate_point`).
@@ -199,41 +204,55 @@ def _joint_cloud_entries(
     rig: Camera,
     xy: Float[Array, "F V J C 2"],
     score: Float[Array, "F V J C"],
-    entries: Int[Array, "K"],
+    entries: Int[Array, "P K"],
     config: JointCloudConfig,
 ) -> JointCloud:
-    """The Joint Cloud of every frame, triangulating only the grid entries ``entries``.
+    """The Joint Cloud of every frame, triangulating only the listed grid entries of each view pair.
 
-    ``entries`` are flat indices into the ``(F, P, J, C, C)`` grid of the pairs that pass the score
-    filter (the others are 0 and invalid in :func:`joint_cloud_frame` too); indices past the grid
-    pad it to a bucketed length (so similar inputs share a compilation) and are dropped.
+    ``entries[p]`` are flat indices into the ``(F, J, C, C)`` grid of view pair ``p`` of the entries
+    that pass the score filter (the others are 0 and invalid in :func:`joint_cloud_frame` too);
+    indices past that grid pad the rows to a common, bucketed length and are dropped.
     """
     frames, num_views, num_joints, num_candidates = score.shape
-    pairs = jnp.asarray(view_pairs(num_views))
-    grid = (frames, len(pairs), num_joints, num_candidates, num_candidates)
-    size = int(np.prod(grid))
-    frame, pair, joint, a, b = jnp.unravel_index(jnp.minimum(entries, size - 1), grid)
-    first, second = pairs[pair, 0], pairs[pair, 1]
-    views = jax.vmap(_views, in_axes=(None, 0))(rig, xy)  # leaves (F, V, ...)
+    pairs = view_pairs(num_views)
+    pair_grid = (frames, num_joints, num_candidates, num_candidates)
+    pair_size = int(np.prod(pair_grid))
+    pairs_array = jnp.asarray(pairs)
+    views = jax.vmap(_views, in_axes=(None, 0), out_axes=_Views(0, 0, None, None))(rig, xy)
 
-    def take(array, view, candidate):
-        return array[frame, view, joint, candidate]
+    def one_pair(pair: Array, pair_entries: Array) -> tuple[_Candidate, Array]:
+        # One view pair per step: its cameras are constants of the step, not per-entry arrays.
+        frame, joint, a, b = jnp.unravel_index(jnp.minimum(pair_entries, pair_size - 1), pair_grid)
+        first, second = pairs_array[pair, 0], pairs_array[pair, 1]
 
-    cand = jax.vmap(triangulate_candidate_pair)(
-        jnp.stack([views.projections[0, first], views.projections[0, second]], axis=1),
-        jnp.stack([views.centres[0, first], views.centres[0, second]], axis=1),
-        jnp.stack([take(views.undistorted, first, a), take(views.undistorted, second, b)], axis=1),
-        jnp.stack([take(views.rays, first, a), take(views.rays, second, b)], axis=1),
-    )
+        def take(array: Array, view: Array, candidate: Array) -> Array:
+            return array[frame, view, joint, candidate]
+
+        pair_projections = jnp.stack([views.projections[first], views.projections[second]])
+        pair_centres = jnp.stack([views.centres[first], views.centres[second]])
+        cand = jax.vmap(triangulate_candidate_pair, in_axes=(None, None, 0, 0))(
+            pair_projections,
+            pair_centres,
+            jnp.stack([take(views.undistorted, first, a), take(views.undistorted, second, b)], axis=1),
+            jnp.stack([take(views.rays, first, a), take(views.rays, second, b)], axis=1),
+        )
+        return cand, jnp.stack([take(score, first, a), take(score, second, b)], axis=-1)
+
+    cand, pair_score = jax.lax.map(lambda args: one_pair(*args), (jnp.arange(len(pairs)), entries))  # (P, K, ...)
     valid = cand.well_posed & cand.in_front & (cand.ray_distance < config.max_ray_distance)
-    pair_score = jnp.stack([take(score, first, a), take(score, second, b)], axis=-1)
+    # Flat index into the (F, P, J, C, C) grid; past its end (dropped) for the padding.
+    frame_size = pair_size // frames
+    grid_index = (entries // frame_size * len(pairs) + jnp.arange(len(pairs))[:, None]) * frame_size + entries % frame_size
+    grid_index = jnp.where(entries < pair_size, grid_index, len(pairs) * pair_size)
+    grid = (frames, len(pairs), num_joints, num_candidates, num_candidates)
 
     def scatter(values: Array) -> Array:
-        dense = jnp.zeros((size,) + values.shape[1:], values.dtype).at[entries].set(values, mode="drop")
-        return dense.reshape(grid + values.shape[1:])
+        dense = jnp.zeros((len(pairs) * pair_size,) + values.shape[2:], values.dtype)
+        flat = values.reshape((-1,) + values.shape[2:])
+        return dense.at[grid_index.reshape(-1)].set(flat, mode="drop").reshape(grid + values.shape[2:])
 
     return JointCloud(
-        point=scatter(jnp.where(valid[:, None], cand.point, 0)),
+        point=scatter(jnp.where(valid[..., None], cand.point, 0)),
         valid=scatter(valid),
         score=scatter(pair_score),
         reprojection_error=scatter(cand.reprojection_error),
@@ -242,8 +261,8 @@ def _joint_cloud_entries(
 
 
 def _bucket(count: int) -> int:
-    """``count`` rounded up to one of at most 16 lengths per power of two (at most 6% padding)."""
-    step = 1 << max(count.bit_length() - 4, 8)
+    """``count`` rounded up to a multiple of 256 or, above 8192, to one of 16 lengths per power of two (< 7%)."""
+    step = 1 << max(count.bit_length() - 5, 8)
     return max(step, -(-count // step) * step)
 
 
@@ -275,12 +294,17 @@ def build_joint_cloud(
     if not jnp.issubdtype(dtype, jnp.floating):
         dtype = np.dtype(np.float32)
     xy, score = xy.astype(dtype), score.astype(dtype)
+    frames, num_views, num_joints, num_candidates = mask.shape
+    pairs = view_pairs(num_views)
+    if frames * len(pairs) * num_joints * num_candidates**2 >= 2**31:
+        raise ValueError(f"the Joint Cloud grid of {frames} frames exceeds int32 indexing: pass fewer frames per call")
     # The comparison in the kernel's dtype, as in joint_cloud_frame.
     usable = mask & (score > np.asarray(config.min_score, dtype))
-    pairs = view_pairs(xy.shape[1])
     both = usable[:, pairs[:, 0], :, :, None] & usable[:, pairs[:, 1], :, None, :]  # (F, P, J, C, C)
-    entries = np.flatnonzero(both)
-    padded = np.full(_bucket(len(entries)), both.size, np.int64 if both.size >= 2**31 else np.int32)
-    padded[: len(entries)] = entries
+    per_pair = np.moveaxis(both, 1, 0).reshape(len(pairs), -1)  # (P, F * J * C * C)
+    entries = [np.flatnonzero(row) for row in per_pair]
+    padded = np.full((len(pairs), _bucket(max(map(len, entries)))), per_pair.shape[1], np.int32)
+    for row, pair_entries in zip(padded, entries):
+        row[: len(pair_entries)] = pair_entries
     rig = jax.tree.map(lambda leaf: jnp.asarray(leaf, dtype), rig)
     return _joint_cloud_entries(rig, jnp.asarray(xy), jnp.asarray(score), jnp.asarray(padded), config)

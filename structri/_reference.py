@@ -43,8 +43,9 @@ class ReferenceResult(NamedTuple):
     """KKT residual below 1e-8, reduced Hessian positive definite, and the Newton solve succeeded."""
 
 
-def reduced_objective(A: Float[Array, "k k"], beta: Float[Array, "k"], bones: Float[Array, "*f n 3"]):
+def reduced_objective(A: Float[ArrayLike, "k k"], beta: Float[ArrayLike, "k"], bones: Float[ArrayLike, "*f n 3"]):
     """``1/2 b^T A b - beta^T b`` (paper Eq. 8 without the constant) for one or many bone sets."""
+    bones = jnp.asarray(bones)
     b = bones.reshape(bones.shape[:-2] + (-1,))
     return 0.5 * jnp.einsum("...k,kl,...l->...", b, A, b) - b @ beta
 
@@ -109,11 +110,14 @@ def _reference(points_2d, P, lengths, weights, starts, *, skeleton, max_steps):
     stationarity, violation = _kkt((b, lam), (A_s, beta_s, lengths))
     residual = jnp.maximum(jnp.max(jnp.abs(stationarity)) / jnp.max(jnp.abs(beta_s)),
                            jnp.max(jnp.abs(violation) / lengths**2))
-    # Tangent space of |b_k|^2 = L_k^2: the two directions orthogonal to b_k, per bone.
+    # Tangent space of |b_k|^2 = L_k^2: two orthonormal directions orthogonal to b_k, per bone, by cross
+    # products with the axis least aligned with b_k (closed form: a batched LAPACK eigh here could run
+    # beside another LAPACK kernel and deadlock XLA's CPU thread pool, see _solver._solve_symmetric).
     n = lengths.shape[0]
     unit = b / jnp.linalg.norm(b, axis=1, keepdims=True)
-    projector = jnp.eye(3)[None] - unit[:, :, None] * unit[:, None, :]
-    basis = jnp.linalg.eigh(projector)[1][:, :, 1:]  # eigenvalue-1 eigenvectors, (n, 3, 2)
+    first = jnp.cross(unit, jnp.eye(3)[jnp.argmin(jnp.abs(unit), axis=1)])
+    first = first / jnp.linalg.norm(first, axis=1, keepdims=True)
+    basis = jnp.stack([first, jnp.cross(unit, first)], axis=-1)  # (n, 3, 2)
     Z = (basis[:, :, None, :] * jnp.eye(n)[:, None, :, None]).reshape(3 * n, 2 * n)
     hessian = A_s + 2.0 * jnp.diag(jnp.repeat(lam, 3))
     min_eig = jnp.min(jnp.linalg.eigvalsh(Z.T @ hessian @ Z))

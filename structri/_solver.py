@@ -237,15 +237,19 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]
     return result
 
 
-def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n F"]) -> Float[Array, "n F"]:
+def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F"]) -> Float[Array, "n *cols F"]:
     """Gaussian elimination without pivoting, element-wise over frames, in ``fori_loop``s.
 
-    The multiplier systems are ``B^T T B`` with T a first-order approximation of the SPD ``A^-1``,
-    so they are (nearly) symmetric positive definite and need no pivoting; a singular one yields
-    non-finite multipliers, which the caller reports. (Unrolling the n = 16 elimination instead
-    compiles for seconds.)"""
+    The systems are (nearly) symmetric positive definite (``B^T T B`` with T a first-order
+    approximation of the SPD ``A^-1``, or ``A + 2 Lambda`` near a constrained minimum), so they need
+    no pivoting; a singular one yields non-finite values, which the caller reports. (Unrolling the
+    elimination instead compiles for seconds.) Deliberately no LAPACK: jaxlib 0.10's batched LAPACK
+    kernels split their batch over XLA's intra-op thread pool and block a pool thread while waiting,
+    so two of them running side by side in one program deadlock a 2-thread pool (see
+    ``tests/test_structri.py::test_no_lapack_in_batched_solvers``)."""
     n = system.shape[0]
-    augmented = jnp.concatenate([system, rhs[:, None]], axis=1)  # (n, n + 1, F)
+    columns = rhs.reshape(n, -1, rhs.shape[-1])
+    augmented = jnp.concatenate([system, columns], axis=1)  # (n, n + cols, F)
     below = jnp.arange(n)
 
     def eliminate(k, aug):
@@ -260,10 +264,10 @@ def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n F"]) ->
     def substitute(j, x):  # x is zero at the unknowns not yet solved for, k and above
         k = n - 1 - j
         row = jax.lax.dynamic_index_in_dim(upper, k, 0, keepdims=False)
-        value = (row[n] - jnp.sum(row[:n] * x, axis=0)) / jax.lax.dynamic_index_in_dim(row, k, 0, keepdims=False)
+        value = (row[n:] - jnp.sum(row[:n, None] * x, axis=0)) / jax.lax.dynamic_index_in_dim(row, k, 0)
         return jax.lax.dynamic_update_index_in_dim(x, value, k, 0)
 
-    return jax.lax.fori_loop(0, n, substitute, jnp.zeros_like(rhs))
+    return jax.lax.fori_loop(0, n, substitute, jnp.zeros_like(columns)).reshape(rhs.shape)
 
 
 def _pose_from_bones(tree: _Tree, D, m, bones: Float[Array, "bones 3 F"]) -> Float[Array, "joints 3 F"]:
@@ -307,25 +311,29 @@ def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[
     return (b, sum(lambdas), solvable), single
 
 
-def _sca_exact(A, beta, b0, lengths, n_steps: int, schedule: str, newton_iterations: int = 2):
-    """SCA re-solving ``(A + 2 Lambda_total)`` instead of the first-order update (one frame, dense).
+def _sca_exact(A: Float[Array, "k k F"], beta: Float[Array, "k F"], b0: Float[Array, "bones 3 F"],
+               lengths: Float[Array, "bones F"], n_steps: int, schedule: str, newton_iterations: int = 2):
+    """SCA re-solving ``(A + 2 Lambda_total)`` instead of the first-order update (frames-last, dense).
 
     The ST multiplier system is one Newton step on ``h(b(lambda)) = L^(i)`` (its matrix is the
     Jacobian up to -4); here each step takes ``newton_iterations`` of them with the exact
     ``b(lambda) = (A + 2 Lambda)^-1 beta``, so the constraints are met to second order."""
     n = b0.shape[0]
-    total = jnp.zeros(n, b0.dtype)
+    eye = jnp.eye(3 * n, dtype=b0.dtype)[:, :, None]
+    bone_columns = jnp.eye(n, dtype=b0.dtype)[:, None, :, None]
+    total = jnp.zeros_like(b0[:, 0])
     b, solvable = b0, jnp.array(True)
     for step in range(1, n_steps + 1):
         target = _target_sq(b, lengths, step, n_steps, schedule)
         for _ in range(newton_iterations):
-            H = A + 2.0 * jnp.diag(jnp.repeat(total, 3))
-            T = jnp.linalg.solve(H, jnp.eye(3 * n, dtype=b0.dtype)).reshape(n, 3, n, 3)
-            system = jnp.einsum("ka,kalc,lc->kl", b, T, b)
-            lam = jnp.linalg.solve(system, jnp.sum(b**2, axis=-1) - target) / 4.0
-            solvable &= jnp.all(jnp.isfinite(lam))
+            H = A + 2.0 * eye * jnp.repeat(total, 3, axis=0)[None]
+            B = (b[:, :, None] * bone_columns).reshape(3 * n, n, -1)  # diag(b) D31
+            system = jnp.sum(B[:, :, None] * _solve_symmetric(H, B)[:, None], axis=0)  # B^T H^-1 B
+            lam = _solve_symmetric(system, jnp.sum(b**2, axis=1) - target) / 4.0
+            solvable &= jnp.all(jnp.isfinite(lam), axis=0)
             total = total + lam
-            b = jnp.linalg.solve(A + 2.0 * jnp.diag(jnp.repeat(total, 3)), beta).reshape(n, 3)
+            H = A + 2.0 * eye * jnp.repeat(total, 3, axis=0)[None]
+            b = _solve_symmetric(H, beta).reshape(b0.shape)
     return b, total, solvable
 
 
@@ -382,12 +390,6 @@ def _default_weights(views, num_joints, confidences, dtype):
     return jnp.asarray(confidences, dtype)
 
 
-def _per_frame(fn, A, beta, b0, lengths):
-    """Run a dense one-frame solver on frames-first ``A, beta`` and frames-last ``b0, lengths``."""
-    lengths = jnp.broadcast_to(lengths, lengths.shape[:1] + b0.shape[-1:])
-    return jax.vmap(fn, in_axes=(0, 0, -1, -1), out_axes=-1)(A, beta, b0, lengths)
-
-
 def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array, "views 3 4 #F"],
            lengths: Float[Array, "bones #F"], weights: Float[Array, "views joints F"], *, skeleton, method,
            n_steps, schedule, degenerate_rcond, lagrangian) -> StructriResult:
@@ -419,12 +421,13 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
             b, lam, solvable = (jnp.where(single[None, None], b1, b), jnp.where(single[None], lam1, lam),
                                 jnp.where(single, solvable1, solvable))
     else:
-        A, beta = jax.vmap(functools.partial(_reduced_from_quadratic, tree), in_axes=-1)(D, m)
+        A, beta = jax.vmap(functools.partial(_reduced_from_quadratic, tree), in_axes=-1, out_axes=-1)(D, m)
+        lengths = jnp.broadcast_to(lengths, lengths.shape[:1] + b0.shape[-1:])
         if method == "st_exact":
-            solver = functools.partial(_sca_exact, n_steps=n_steps, schedule=schedule)
+            b, lam, solvable = _sca_exact(A, beta, b0, lengths, n_steps, schedule)
         else:
-            solver = functools.partial(_lagrangian, **lagrangian)
-        b, lam, solvable = _per_frame(solver, A, beta, b0, lengths)
+            b, lam, solvable = jax.vmap(functools.partial(_lagrangian, **lagrangian), in_axes=-1, out_axes=-1)(
+                A, beta, b0, lengths)
 
     pose = _pose_from_bones(tree, D, m, b)
     finite = solvable & jnp.all(jnp.isfinite(pose), axis=(0, 1)) & jnp.all(jnp.isfinite(lam), axis=0)
@@ -618,24 +621,34 @@ def lem_triangulation(
     cameras: Camera | Float[ArrayLike, "*pframes views 3 4"],
     skeleton: Skeleton = H36M17,
     confidences: Float[ArrayLike, "*frames views joints"] | None = None,
+    *,
+    millimetres_per_unit: float = 1000.0,
 ) -> StructriResult:
     """Linear eigen method (homogeneous DLT per joint, :func:`geometry.triangulate_point`) as in the
     official ``utils.py``: rows multiplied by w (squared residuals weighted by w^2), not normalised.
+
+    The unnormalised DLT is not unit-invariant: with ``|[X; 1]|`` fixed it minimises the algebraic cost
+    divided by ``1 + |X|^2``, which pulls joints away from the world origin far more in millimetres
+    than in metres. The official code (and the paper's LEM numbers) work in millimetres, so inputs in
+    another unit are run in millimetres (``millimetres_per_unit``, 1000 for metres; 1 keeps the given
+    unit) and the result is returned in the input unit.
 
     A joint whose DLT is not determined (``valid`` False) gets the regularised LS point and
     :attr:`Status.UNDERDETERMINED` for its frame."""
     frames, args, axes = _prepare(points_2d, cameras, np.ones(skeleton.num_joints - 1), skeleton, confidences)
     return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]),
-                        _lem_flat(*args, axes=axes, skeleton=skeleton))
+                        _lem_flat(*args, axes=axes, skeleton=skeleton, scale=float(millimetres_per_unit)))
 
 
-@functools.partial(jax.jit, static_argnames=("axes", "skeleton"))
-def _lem_flat(points_2d, P, lengths, weights, *, axes, skeleton):
+@functools.partial(jax.jit, static_argnames=("axes", "skeleton", "scale"))
+def _lem_flat(points_2d, P, lengths, weights, *, axes, skeleton, scale):
     tree = _tree(skeleton)
-    dlt = jax.vmap(jax.vmap(triangulate_point, in_axes=(None, 1, 1)), in_axes=(axes[1], 0, 0))(P, points_2d, weights)
+    P_scaled = P.at[..., 3].multiply(scale)  # P [s X; 1] projects like P [X; 1] with t scaled by s
+    dlt = jax.vmap(jax.vmap(triangulate_point, in_axes=(None, 1, 1)), in_axes=(axes[1], 0, 0))(
+        P_scaled, points_2d, weights)
     ls = _solve_flat(points_2d, P, lengths, weights, axes=axes, skeleton=skeleton, method="ls", n_steps=1,
                      schedule="length", degenerate_rcond=0.0, lagrangian=())
-    pose = jnp.where(dlt.valid[..., None], dlt.point, ls.pose)
+    pose = jnp.where(dlt.valid[..., None], dlt.point / scale, ls.pose)
     status = jnp.where(jnp.all(dlt.valid, axis=-1), Status.OK, Status.UNDERDETERMINED).astype(jnp.int32)
     bones = pose[:, tree.child] - pose[:, tree.parent]
     return StructriResult(pose, bones, status, jnp.zeros(bones.shape[:2], pose.dtype))

@@ -7,11 +7,18 @@ steps (the solver drops to one step on the degenerate two-camera round ring by i
 real CMU motion from the shipped clips (:func:`mocap.load_clip`, H36M17 joints), subsampled.
 
 Units: computed in METRES (project convention), reported in MILLIMETRES (``*_mm`` keys), like the
-paper. ``recentre`` puts each pose's pelvis at the world origin (the paper's stated protocol; the
-official code does not, but its H36M poses stand near the origin while CMU clips wander metres away
+paper. LEM runs the official DLT in millimetres (it is not unit-invariant; ``DLT_m`` is the same DLT
+in metres, reported beside it). Every cell pads the camera axis to ``max(views)`` with zero-confidence
+views, so each solver compiles once for the whole grid. ``recentre`` puts each pose's pelvis at the
+world origin (the paper's stated protocol; the official code does not, but its H36M poses stand near the origin while CMU clips wander metres away
 from it, which would put subjects outside a 2 m ring). ``up_axis="z"`` (default, the clips' world)
 makes the ring horizontal; ``"y"`` reproduces the official code's literal ``R_y`` ring, vertical in a
 z-up world.
+
+Objective gap: ``(f(ST projected) - f*) / (f* - f(LS))`` with f the reduced objective, f* the
+certified reference and "projected" each ST bone rescaled to its target length (the nearest feasible
+point), so that feasible points are compared; the raw gap of ST itself (negative when ST's small
+length residual undercuts f*) and that residual are reported beside it.
 
 Bone lengths: "exact" = each person's mean length over all of its frames (the code's per-subject
 mean); "estimated" (ST*) = mean LS length over the first ``estimate_frames`` selected frames of each
@@ -36,9 +43,12 @@ from ._solver import (estimate_bone_lengths, lagrangian_triangulation, lem_trian
 
 __all__ = ["VirtualConfig", "load_poses", "run_virtual", "write_report"]
 
-METHODS = ("LEM", "LS", "ST", "ST_exact", "Lagrangian", "ST_est")
-"""ST: ST + SCA, exact lengths; ST_exact: SCA with the exact (re-solved) update; ST_est: ST + SCA with
-estimated lengths (the paper's ST*)."""
+METHODS = ("LEM", "DLT_m", "LS", "ST", "ST_exact", "Lagrangian", "ST_est")
+"""LEM: the official DLT baseline, run in millimetres as the official code does; DLT_m: the same DLT run
+in metres (the unnormalised DLT is not unit-invariant, see :func:`structri.lem_triangulation`; with
+the pelvis at the origin it is about 20 % better in metres and nearly equals LS); ST: ST + SCA, exact
+lengths; ST_exact: SCA with the exact (re-solved) update; ST_est: ST + SCA with estimated lengths (the
+paper's ST*)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,24 +103,42 @@ def _observe(P: np.ndarray, poses: np.ndarray, sigma: float, rng: np.random.Gene
     return h[..., :2] / h[..., 2:] + sigma * rng.normal(size=h.shape[:-1] + (2,))
 
 
-def _estimated_lengths(points, P, person, cfg) -> np.ndarray:
+def _pad_views(P: np.ndarray, points: np.ndarray, max_views: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pad the camera axis to ``max_views`` with copies of camera 0 at confidence 0 (a zero weight drops
+    a view exactly in every solver), so one compilation per solver serves every camera count.
+    Real views get the protocol's uniform weight ``1/C``."""
+    views = P.shape[0]
+    extra = max_views - views
+    P = np.concatenate([P, np.repeat(P[:1], extra, axis=0)])
+    points = np.concatenate([points, np.repeat(points[:, :1], extra, axis=1)], axis=1)
+    confidences = np.zeros(points.shape[:-1])
+    confidences[:, :views] = 1.0 / views
+    return P, points, confidences
+
+
+def _estimated_lengths(points, P, confidences, person, cfg) -> np.ndarray:
     out = np.empty((len(person), H36M17.num_joints - 1))
     for p in np.unique(person):
         rows = np.flatnonzero(person == p)
-        out[rows] = np.asarray(estimate_bone_lengths(points[rows], P, H36M17, frames=np.arange(min(cfg.estimate_frames, rows.size))))
+        out[rows] = np.asarray(estimate_bone_lengths(points[rows], P, H36M17, confidences[rows],
+                                                     frames=np.arange(min(cfg.estimate_frames, rows.size))))
     return out
 
 
 def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, lengths, person, rng) -> dict:
     P = np.asarray(projection_matrices(structri_virtual_rig(views, pattern, up_axis=cfg.up_axis)))
-    points = _observe(P, poses, sigma, rng)
-    estimated = _estimated_lengths(points, P, person, cfg)
+    P, points, conf = _pad_views(P, _observe(P, poses, sigma, rng), max(cfg.views))
+    estimated = _estimated_lengths(points, P, conf, person, cfg)
     results = {
-        "LEM": lem_triangulation(points, P), "LS": ls_triangulation(points, P),
-        "ST": structural_triangulation(points, P, lengths, n_steps=cfg.n_steps),
-        "ST_exact": structural_triangulation(points, P, lengths, n_steps=cfg.n_steps, update="exact"),
-        "Lagrangian": lagrangian_triangulation(points, P, lengths, n_iterations=cfg.lagrangian_iterations),
-        "ST_est": structural_triangulation(points, P, estimated, n_steps=cfg.n_steps),
+        "LEM": lem_triangulation(points, P, confidences=conf),
+        "DLT_m": lem_triangulation(points, P, confidences=conf, millimetres_per_unit=1.0),
+        "LS": ls_triangulation(points, P, confidences=conf),
+        "ST": structural_triangulation(points, P, lengths, confidences=conf, n_steps=cfg.n_steps),
+        "ST_exact": structural_triangulation(points, P, lengths, confidences=conf, n_steps=cfg.n_steps,
+                                             update="exact"),
+        "Lagrangian": lagrangian_triangulation(points, P, lengths, confidences=conf,
+                                               n_iterations=cfg.lagrangian_iterations),
+        "ST_est": structural_triangulation(points, P, estimated, confidences=conf, n_steps=cfg.n_steps),
     }
     per_frame = {k: 1000.0 * np.asarray(mpjpe(r.pose, poses)) for k, r in results.items()}
     groups = [np.flatnonzero(person == p) for p in np.unique(person)]
@@ -119,6 +147,7 @@ def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, len
         "pattern": pattern, "views": views, "sigma": sigma, "frames": len(poses),
         "mpjpe_mm": {k: float(np.nanmean(v)) for k, v in per_frame.items()},
         "st_le_lem_fraction": float(np.mean(per_frame["ST"] <= per_frame["LEM"])),
+        "st_le_dlt_m_fraction": float(np.mean(per_frame["ST"] <= per_frame["DLT_m"])),
         "mpble_mm": {k: 1000.0 * float(np.mean(mpble(r.pose, H36M17, lengths))) for k, r in results.items()},
         "mbls_mm": {k: 1000.0 * float(np.mean([mbls(np.asarray(r.pose)[g], H36M17) for g in groups]))
                     for k, r in results.items()},
@@ -126,24 +155,39 @@ def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, len
         "status_counts_ST": {int(s): int(c) for s, c in zip(*np.unique(np.asarray(results["ST"].status), return_counts=True))},
     }
     k = min(cfg.reference_frames, len(poses))
-    gaps, ref_err, certified = [], [], []
+    gaps, projected_gaps, residuals, ref_err, certified = [], [], [], [], []
     for f in range(k):
-        ref = constrained_reference(points[f], P, lengths[f])
-        A, beta = reduced_problem(points[f], P)
+        ref = constrained_reference(points[f], P, lengths[f], confidences=conf[f])
+        A, beta = reduced_problem(points[f], P, confidences=conf[f])
         objective = lambda b: float(reduced_objective(A, beta, b))  # noqa: E731
-        best, st, ls = objective(ref.bones), objective(results["ST"].bones[f]), objective(results["LS"].bones[f])
-        gaps.append((st - best) / max(abs(best - ls), 1e-300))
+        st_bones = np.asarray(results["ST"].bones[f])
+        st_lengths = np.linalg.norm(st_bones, axis=-1)
+        best, ls = objective(ref.bones), objective(results["LS"].bones[f])
+        # Relative to the constrained improvement over LS; ST meets the constraints only approximately,
+        # so its raw objective can undercut the constrained optimum (negative gap). Its nearest feasible
+        # point (each bone rescaled to its target length) makes the comparison feasible-to-feasible.
+        gaps.append((objective(st_bones) - best) / max(abs(best - ls), 1e-300))
+        projected = st_bones * (lengths[f] / st_lengths)[:, None]
+        projected_gaps.append((objective(projected) - best) / max(abs(best - ls), 1e-300))
+        residuals.append(1000.0 * float(np.max(np.abs(st_lengths - lengths[f]))))
         ref_err.append(1000.0 * float(mpjpe(ref.pose, poses[f])))
         certified.append(bool(ref.certified))
     out["reference"] = {"frames": k, "mpjpe_mm": float(np.mean(ref_err)) if k else None,
                         "st_mpjpe_mm_same_frames": float(np.mean(per_frame["ST"][:k])) if k else None,
                         "median_objective_gap": float(np.median(gaps)) if k else None,
+                        "median_objective_gap_projected": float(np.median(projected_gaps)) if k else None,
+                        "st_max_length_residual_mm": float(np.max(residuals)) if k else None,
                         "certified_fraction": float(np.mean(certified)) if k else None}
     return out
 
 
 def _targets(cells: list[dict]) -> dict:
-    """The issue's acceptance targets, evaluated; each lists the cells that miss it."""
+    """The issue's acceptance targets, evaluated; each lists the cells that miss it.
+
+    The MPJPE targets concern cells with at least 3 cameras. The bone-length and objective-gap targets
+    skip the degenerate two-camera round ring (opposite cameras, rays of joints near the axis
+    parallel), where SCA is replaced by one ST step and the problem itself is ill-posed, as the
+    spec's anchor table does (section 7: "degenerate case excluded")."""
     misses = {"st_beats_lem_99pct": [], "st_le_0.8_lem": [], "st_mpble_below_0.5mm": [], "objective_gap_below_1pct": []}
     for c in cells:
         name = f"{c['pattern']}/{c['views']}/{c['sigma']:g}"
@@ -151,9 +195,11 @@ def _targets(cells: list[dict]) -> dict:
             misses["st_beats_lem_99pct"].append((name, c["st_le_lem_fraction"]))
         if c["views"] >= 3 and c["mpjpe_mm"]["ST"] > 0.8 * c["mpjpe_mm"]["LEM"]:
             misses["st_le_0.8_lem"].append((name, c["mpjpe_mm"]["ST"] / c["mpjpe_mm"]["LEM"]))
+        if c["pattern"] == "round" and c["views"] == 2:
+            continue
         if c["mpble_mm"]["ST"] >= 0.5:
             misses["st_mpble_below_0.5mm"].append((name, c["mpble_mm"]["ST"]))
-        gap = c["reference"]["median_objective_gap"]
+        gap = c["reference"]["median_objective_gap_projected"]
         if gap is not None and abs(gap) >= 0.01:
             misses["objective_gap_below_1pct"].append((name, gap))
     return {k: {"met": not v, "misses": v} for k, v in misses.items()}
@@ -212,19 +258,23 @@ def write_report(results: dict, out_dir: str | Path) -> None:
         lines.append("")
 
     table("MPJPE LEM / LS / ST (mm)", lambda c: "{LEM:.2f} / {LS:.2f} / {ST:.2f}".format(**c["mpjpe_mm"]))
+    table("MPJPE ratio ST / LEM, ST / DLT in metres",
+          lambda c: f"{c['mpjpe_mm']['ST'] / c['mpjpe_mm']['LEM']:.3f}, {c['mpjpe_mm']['ST'] / c['mpjpe_mm']['DLT_m']:.3f}")
     table("MPJPE ST-exact / Lagrangian / ST* (estimated lengths) (mm)",
           lambda c: "{ST_exact:.2f} / {Lagrangian:.2f} / {ST_est:.2f}".format(**c["mpjpe_mm"]))
     table("Fraction of frames with ST <= LEM", lambda c: f"{c['st_le_lem_fraction']:.3f}")
     table("MPBLE LEM / ST / ST* (mm)", lambda c: "{LEM:.2f} / {ST:.3f} / {ST_est:.2f}".format(**c["mpble_mm"]))
     table("MBLS ST / ST* (mm), PIB ST (%)",
           lambda c: f"{c['mbls_mm']['ST']:.3f} / {c['mbls_mm']['ST_est']:.3f}, {c['pib_percent']['ST']:.1f}")
-    table("Reference: MPJPE (ST on same frames), median objective gap",
-          lambda c: "{mpjpe_mm:.2f} ({st_mpjpe_mm_same_frames:.2f}), {median_objective_gap:.2e}".format(**c["reference"]))
+    table("Reference: MPJPE (ST on same frames); median objective gap of ST projected on the constraints "
+          "(raw ST); ST's max length residual (mm)",
+          lambda c: ("{mpjpe_mm:.2f} ({st_mpjpe_mm_same_frames:.2f}); {median_objective_gap_projected:.2e} "
+                     "({median_objective_gap:.2e}); {st_max_length_residual_mm:.3f}").format(**c["reference"]))
     lines.extend(["## Targets", ""] + [f"- {k}: {'met' if v['met'] else 'MISSED in ' + str(v['misses'])}"
                                        for k, v in results["targets"].items()] + [""])
     (out_dir / "results.md").write_text("\n".join(lines))
 
-    shown = ("LEM", "LS", "ST", "ST_est", "Lagrangian")
+    shown = ("LEM", "DLT_m", "LS", "ST", "ST_est", "Lagrangian")
     mid_views = min(cfg["views"], key=lambda v: abs(v - 4))
     mid_sigma = min(cfg["sigmas"], key=lambda s: abs(s - 10))
     for name, xs, key, label in (("mpjpe_vs_sigma", cfg["sigmas"], lambda p, x: (p, mid_views, x), f"σ (px), C = {mid_views}"),

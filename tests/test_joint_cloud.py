@@ -71,6 +71,31 @@ def test_filters(frame):
     assert np.asarray(loose.valid).sum() > valid.sum() > np.asarray(strict.valid).sum()
 
 
+def test_pruned_frames_equal_the_dense_frame_kernel(frame):
+    """build_joint_cloud triangulates only score-filtered entries, pair by pair; joint_cloud_frame
+    computes the whole grid. Three frames: the fixture, one with other noise and scores, one empty."""
+    rig, xy, score, mask, _ = frame
+    rng = np.random.default_rng(7)
+    xy_f = np.stack([xy, xy + rng.normal(0, 2.0, xy.shape), xy])
+    score_f = np.stack([score, rng.uniform(0.0, 0.6, score.shape), score])
+    mask_f = np.stack([mask, mask, np.zeros_like(mask)])
+    cloud = jcsat.build_joint_cloud(rig, xy_f, score_f, mask_f)
+    dense = jax.vmap(jcsat.joint_cloud_frame, in_axes=(None, 0, 0, 0))(rig, jnp.asarray(xy_f), jnp.asarray(score_f), jnp.asarray(mask_f))
+    assert 10 < int(np.asarray(cloud.valid).sum()) and not np.asarray(cloud.valid[2]).any()
+    for name, a, b in zip(jcsat.JointCloud._fields, cloud, dense):
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+def test_entry_buckets_bound_padding_and_compilations():
+    from jcsat._joint_cloud import _bucket
+
+    counts = np.arange(1, 200_000, 37)
+    buckets = np.array([_bucket(int(c)) for c in counts])
+    assert (buckets >= counts).all() and (buckets < np.maximum(counts + 256, counts * 1.07)).all()
+    assert len(set(buckets.tolist())) < 150  # a few lengths per power of two, not one per count
+
+
 def test_jit_equals_eager(frame):
     rig, xy, score, mask, _ = frame
     args = (rig, jnp.asarray(xy), jnp.asarray(score), jnp.asarray(mask))

@@ -2,12 +2,14 @@
 paper's qualitative claims (anchor table, spec section 7), and the robustness contract."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from geometry import H36M17, Skeleton, bone_lengths, structri_virtual_rig
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
-                      lem_triangulation, ls_triangulation, numpy_structural_triangulation_frames,
+                      lem_triangulation, ls_triangulation, numpy_lem_triangulation,
+                      numpy_structural_triangulation_frames,
                       reduced_objective, reduced_problem, structural_triangulation)
 
 # H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
@@ -65,6 +67,18 @@ def test_matches_numpy_reference(scene):
     ls = ls_triangulation(points, P)
     ref = numpy_structural_triangulation_frames(points, P, LENGTHS, method="LS")
     np.testing.assert_allclose(ls.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
+    # LEM runs the official DLT in millimetres (it is not unit-invariant): metres in, metres out.
+    P_mm = P.copy()
+    P_mm[:, :, 3] *= 1000.0
+    lem = np.asarray(lem_triangulation(points[:4], P).pose)
+    error = np.abs(lem - np.stack([numpy_lem_triangulation(p, P_mm) / 1000.0 for p in points[:4]]))
+    # geometry's closed-form null vector (adjugate + 3 power steps) is exact to ~1e-14 when
+    # lambda_4 / lambda_3 of the DLT normal matrix is small; in millimetres that ratio reaches ~0.1,
+    # leaving up to ~0.2 mm at a few joints (against ~20 mm MPJPE).
+    assert np.median(error) < 1e-8 and np.max(error) < 5e-4
+    in_metres = np.asarray(lem_triangulation(points[:4], P, millimetres_per_unit=1.0).pose)
+    np.testing.assert_allclose(in_metres[0], numpy_lem_triangulation(points[0], P), rtol=0, atol=1e-8)
+    assert np.max(np.abs(in_metres - lem)) > 1e-3  # the unit matters
 
 
 def test_reduced_problem_matches_sparse_inverse(scene):
@@ -91,7 +105,7 @@ def test_anchor_ordering_in_millimetres(pattern, views):
     poses = 1000.0 * synthetic_poses(24, rng)
     points, P = observe(virtual_rig(views, pattern, unit=1000.0), poses, 6.0, rng)
     st = structural_triangulation(points, P, 1000.0 * LENGTHS)
-    ls, lem = ls_triangulation(points, P), lem_triangulation(points, P)
+    ls, lem = ls_triangulation(points, P), lem_triangulation(points, P, millimetres_per_unit=1.0)
     assert mpjpe(st.pose, poses) < mpjpe(ls.pose, poses) < mpjpe(lem.pose, poses)
     per_frame = lambda r: np.mean(np.linalg.norm(np.asarray(r.pose) - poses, axis=-1), axis=-1)  # noqa: E731
     assert np.mean(per_frame(st) <= per_frame(lem)) >= 0.8
@@ -201,6 +215,7 @@ def test_clear_errors(scene):
         structural_triangulation(points, rig._replace(dist=rig.dist.at[:, 0].set(0.1)), LENGTHS)
 
 
+@pytest.mark.timeout(240, method="thread")  # a deadlock blocks in C, where the signal method cannot interrupt
 def test_virtual_experiment_smoke(tmp_path):
     """The virtual-camera experiment on a tiny grid: files written, ST beats LEM, targets evaluated."""
     import json
@@ -216,3 +231,24 @@ def test_virtual_experiment_smoke(tmp_path):
     assert cell["mpjpe_mm"]["ST"] < cell["mpjpe_mm"]["LEM"]
     assert cell["mpble_mm"]["ST"] < 0.5
     assert json.loads((tmp_path / "config.json").read_text())["frames"] == 24
+
+
+def test_no_lapack_in_batched_solvers(scene):
+    """The batched solvers must not call LAPACK: jaxlib 0.10's batched LAPACK kernels (e.g. the LU of
+    a vmapped ``jnp.linalg.solve``) split their batch over XLA's intra-op thread pool and block a pool
+    thread while they wait, so two of them side by side in one program deadlock a small pool (the
+    virtual experiment hung in ``update="exact"`` on 2 cores). Lowering only: nothing is compiled."""
+    _, _, points, P = scene
+    conf = np.full(points.shape[:-1], 0.25)
+    solvers = {
+        "st": lambda p: structural_triangulation(p, P, LENGTHS, confidences=conf),
+        "st_exact": lambda p: structural_triangulation(p, P, LENGTHS, confidences=conf, update="exact"),
+        "ls": lambda p: ls_triangulation(p, P),
+        "lem": lambda p: lem_triangulation(p, P),
+        "lagrangian": lambda p: lagrangian_triangulation(p, P, LENGTHS, n_iterations=3),
+        "estimate": lambda p: estimate_bone_lengths(p, P),
+    }
+    canary = jax.jit(jax.vmap(jnp.linalg.solve)).lower(np.eye(3)[None].repeat(2, 0), np.ones((2, 3))).as_text()
+    assert "lapack" in canary.lower()  # the check below can fail
+    for name, solver in solvers.items():
+        assert "lapack" not in jax.jit(solver).lower(points).as_text().lower(), name
