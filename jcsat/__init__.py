@@ -25,6 +25,7 @@ from ._geometric import GeometricPoses as GeometricPoses
 from ._geometric import consensus_joint as consensus_joint
 from ._geometric import fill_missing as fill_missing
 from ._geometric import geometric_poses as geometric_poses
+from ._geometric import reject_temporal_outliers as reject_temporal_outliers
 from ._joint_cloud import JointCloud as JointCloud
 from ._joint_cloud import JointCloudConfig as JointCloudConfig
 from ._joint_cloud import build_joint_cloud as build_joint_cloud
@@ -40,6 +41,6 @@ __all__ = [
     "BODY25_JOINT_RADIUS", "BaselineConfig", "BaselineResult", "ClusterConfig", "FrameClusters",
     "GeometricConfig", "GeometricPoses", "METHODS", "ShelfExperimentConfig", "ShelfExperimentResult", "JointCloud", "JointCloudConfig", "KMeansResult", "PersonJointCloud",
     "build_joint_cloud", "cluster_frames", "consensus_joint", "fill_missing", "geometric_poses", "joint_cloud_frame",
-    "kmeans", "numpy_joint_cloud_frame", "people_count", "person_joint_cloud", "run_geometric_baseline", "run_shelf_experiment", "synthetic_validation", "track_centres",
+    "kmeans", "numpy_joint_cloud_frame", "people_count", "person_joint_cloud", "reject_temporal_outliers", "run_geometric_baseline", "run_shelf_experiment", "synthetic_validation", "track_centres",
     "triangulate_candidate_pair", "view_pairs", "window_frames",
 ]

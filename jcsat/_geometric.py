@@ -18,7 +18,10 @@ are reduced to one 3D joint:
    (weights = scores). This recovers views whose pairs failed the Joint Cloud filters and drops
    consensus detections the point does not explain. Kept only if at least two views agree.
 
-Joints of a track that no candidate supports in a frame are filled from the nearest frame where the
+A joint far from its own temporal median (over the track's neighbouring frames) is an outlier,
+typically a candidate cluster of another person or joint type that won the medoid in one frame, and
+is replaced by that median (:func:`reject_temporal_outliers`, a Hampel filter). Joints of a track
+that no candidate supports in a frame are filled from the nearest frame where the
 same track has them (:func:`fill_missing`); BODY25 is then converted to Shelf15 with the 4D-association
 head rule (:func:`geometry.to_shelf15`), the JCSAT convention for BODY25 sources.
 """
@@ -40,7 +43,8 @@ from geometry import BODY25, Camera
 from ._clustering import FrameClusters
 from ._joint_cloud import JointCloud, view_pairs
 
-__all__ = ["GeometricConfig", "GeometricPoses", "consensus_joint", "geometric_poses", "fill_missing"]
+__all__ = ["GeometricConfig", "GeometricPoses", "consensus_joint", "geometric_poses", "fill_missing",
+           "reject_temporal_outliers"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,3 +217,32 @@ def fill_missing(
         joints[need, j] = joints[nearest, j]
         filled[need, j] = True
     return joints, filled
+
+
+def reject_temporal_outliers(
+    joints: Float[np.ndarray, "F J 3"], valid: Bool[np.ndarray, "F J"], half_window: int, max_deviation: float
+) -> Float[np.ndarray, "F J 3"]:
+    """Replace each valid joint farther than ``max_deviation`` (metres) from its temporal median by that median.
+
+    The median is per coordinate over the valid frames within ``half_window`` frames on either side
+    (the frame itself included), and only used where at least ``half_window + 1`` of them exist, so
+    that an isolated detection is not judged by one or two neighbours. Human joints move a few
+    centimetres per frame, so a joint that jumps far from where it was both before and after is a
+    wrong association, not motion. ``half_window = 0`` returns ``joints`` unchanged; ``max_deviation = 0``
+    is a plain temporal median filter.
+    """
+    joints = np.asarray(joints, float)
+    valid = np.asarray(valid, bool)
+    if half_window < 0 or max_deviation < 0:
+        raise ValueError(f"need half_window >= 0 and max_deviation >= 0, got {half_window}, {max_deviation}")
+    if half_window == 0:
+        return joints
+    frames = joints.shape[0]
+    masked = np.where(valid[..., None], joints, np.nan)
+    padded = np.pad(masked, ((half_window, half_window), (0, 0), (0, 0)), constant_values=np.nan)
+    windows = np.stack([padded[k:k + frames] for k in range(2 * half_window + 1)], axis=1)  # (F, W, J, 3)
+    enough = np.sum(np.isfinite(windows[..., 0]), axis=1) > half_window
+    with np.errstate(all="ignore"):
+        median = np.nanmedian(np.where(enough[:, None, :, None], windows, 0.0), axis=1)
+    outlier = valid & enough & (np.linalg.norm(joints - median, axis=-1) > max_deviation)
+    return np.where(outlier[..., None], median, joints)

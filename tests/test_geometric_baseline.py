@@ -67,6 +67,29 @@ def test_fill_missing_uses_nearest_frame():
     assert ok.all()
 
 
+def test_temporal_outlier_rejection():
+    rng = np.random.default_rng(0)
+    frames = np.arange(20)
+    joints = np.stack([0.01 * frames, np.zeros(20), np.ones(20)], axis=-1)[:, None, :] + rng.normal(0, 0.002, (20, 1, 3))
+    valid = np.ones((20, 1), bool)
+    valid[15:18] = False  # frame 18 has only 3 valid frames within +-3: not enough to be judged
+    corrupted = joints.copy()
+    corrupted[5, 0] += [0.5, 0.0, 0.0]  # another person's hand won the medoid in one frame
+    corrupted[18, 0] += [0.5, 0.0, 0.0]
+    corrupted[16, 0] = 99.0  # invalid frames are neither used nor changed
+    out = jcsat.reject_temporal_outliers(corrupted, valid, half_window=3, max_deviation=0.15)
+    assert np.linalg.norm(out[5, 0] - joints[5, 0]) < 0.02
+    np.testing.assert_array_equal(out[18], corrupted[18])
+    np.testing.assert_array_equal(out[16], corrupted[16])
+    untouched = np.setdiff1d(frames, [5])
+    np.testing.assert_array_equal(out[untouched], corrupted[untouched])
+    np.testing.assert_array_equal(jcsat.reject_temporal_outliers(corrupted, valid, 0, 0.15), corrupted)
+    median = jcsat.reject_temporal_outliers(joints, valid, 1, 0.0)  # distance 0: a plain median filter
+    np.testing.assert_allclose(median[1], np.median(joints[0:3], axis=0))
+    with pytest.raises(ValueError, match="half_window"):
+        jcsat.reject_temporal_outliers(joints, valid, -1, 0.1)
+
+
 def test_experiment_end_to_end(tmp_path):
     config = jcsat.ShelfExperimentConfig(synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
     events = []

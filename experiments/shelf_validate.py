@@ -1,0 +1,57 @@
+"""Choose the geometric baseline's settings on SYNTHETIC Shelf-rig validation scenes (never on Shelf 300-600).
+
+    .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90] [--json]
+
+Scores a grid of :class:`jcsat.BaselineConfig` variants (the temporal outlier filter's window and
+distance; distance 0 is a plain median filter) with :func:`jcsat.synthetic_validation` and prints one row per
+setting: PCP (VoxelPose protocol, all synthetic people) per seed and their mean. The defaults of
+:class:`jcsat.BaselineConfig` are the best row of this table. About 2 minutes on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
+
+import jax  # noqa: E402
+
+import jcsat  # noqa: E402
+
+
+def settings() -> dict[str, jcsat.BaselineConfig]:
+    base = dataclasses.replace(jcsat.BaselineConfig(), outlier_half_window=0)
+    grid = {"no outlier filter": base}
+    for half_window in (2, 3, 5):
+        for distance in (0.0, 0.05, 0.1, 0.15, 0.25):
+            grid[f"outliers +-{half_window} frames, {distance:g} m"] = dataclasses.replace(
+                base, outlier_half_window=half_window, outlier_distance=distance)
+    return grid
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.shelf_validate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[101, 102, 103],
+                        help="one synthetic scene per seed (default: %(default)s; the main job uses seed 0)")
+    parser.add_argument("--people", type=int, default=4, help="people per scene (default: %(default)s)")
+    parser.add_argument("--frames", type=int, default=90, help="frames per scene (default: %(default)s)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    args = parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames)
+    if args.json:
+        print(json.dumps(table))
+        return 0
+    columns = [f"seed {s}" for s in args.seeds] + ["pcp", "tracks"]
+    print(f"{'setting':<34}" + "".join(f"{c:>10}" for c in columns))
+    for name, row in table.items():
+        print(f"{name:<34}" + "".join(f"{row[c]:10.2f}" for c in columns))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
