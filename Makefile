@@ -13,8 +13,9 @@ $(VENV)/.installed: pyproject.toml
 .PHONY: install demo test bench
 install: $(VENV)/.installed
 
+# The real Shelf frames when the data folder is there, else the synthetic scene (the job says which).
 demo: install
-	$(PY) -m experiments.shelf_jcsat --out runs/demo
+	$(if $(wildcard $(DATA_ROOT)/shelf),MVMOCAP_DATA_ROOT=$(DATA_ROOT)) $(PY) -m experiments.shelf_jcsat --out runs/demo
 
 test: install
 	$(PY) -m pytest -q --data-root=$(DATA_ROOT)

@@ -1,14 +1,20 @@
-"""Multi-person 3D pose on Shelf from the Joint Cloud (the project's main job).
+"""Multi-person 3D pose on Shelf with JCSAT (the project's main job).
 
-    .venv/bin/python -m experiments.shelf_jcsat [--method geometric] [--data-root PATH] [--out DIR] [--quick] [--seed S]
+    .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
+        [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--train [--resume] [--steps S]] [--seed S]
 
-The only method so far is ``geometric``, a learning-free baseline on the JCSAT Joint Cloud (JCSAT's
-transformer is a later issue; the output says so). With ``--data-root`` holding ``shelf/`` it runs on
-the real Shelf test frames 300..600 and prints PCP under the VoxelPose, JCSAT and 4D-association
-matching protocols next to the 4D-association output scored by the same evaluator. Without it, it
-runs on a seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, ``log.jsonl``,
+With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_cpu``, trained only on
+synthetic scenes) beside the learning-free geometric baseline. With Shelf data (``--data-root`` or
+``MVMOCAP_DATA_ROOT`` holding ``shelf/``) it infers on the real test frames 300..600 with causal windows
+of N = 10 frames and prints PCP (VoxelPose, JCSAT and 4D-association protocols), precision/recall
+and MPJPE next to the 4D-association output scored by the same evaluator; without data it runs on a
+seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, ``log.jsonl``,
 ``predictions.jsonl`` (``mocap`` prediction format, ``python -m experiments.shelf_eval --pred``),
-``metrics.json`` and ``frame.png`` to ``--out``. Logic: :func:`jcsat.run_shelf_experiment`.
+``predictions_geometric.jsonl``, ``metrics.json`` and ``frame.png`` to ``--out``.
+
+``--train`` first trains a model from scratch on synthetic scenes (:func:`jcsat.train`, workdir
+``--out/train``; ``--resume`` continues a killed run from its last checkpoint) and then evaluates it.
+Logic: :func:`jcsat.run_shelf_experiment`, :func:`jcsat.train`.
 """
 
 from __future__ import annotations
@@ -16,52 +22,83 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 from pathlib import Path
 
-import jax
-from tqdm import tqdm
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
 
-import jcsat
+import jax  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
-_STAGES = ("data", "geometric", "evaluation", "plot")
+import jcsat  # noqa: E402
+
+_STAGES = ("data", "geometric", "jcsat", "evaluation", "plot")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.shelf_jcsat",
-        description="Shelf multi-person 3D pose from the JCSAT Joint Cloud. Default method: the geometric "
-                    "(learning-free) baseline; JCSAT itself is not implemented yet.",
-    )
-    parser.add_argument("--method", choices=jcsat.METHODS, default="geometric",
-                        help="geometric: Joint Cloud -> trimmed K-Means persons -> weighted medoid + "
-                             "multi-view re-triangulation (default and only choice for now)")
-    parser.add_argument("--data-root", type=Path, default=None,
-                        help="folder containing shelf/ (actorsGT.mat, 4d_association/); without it a "
-                             "synthetic Shelf-rig scene is used and the output says SYNTHETIC")
+    parser = argparse.ArgumentParser(prog="python -m experiments.shelf_jcsat", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--method", choices=jcsat.METHODS, default="jcsat",
+                        help="jcsat: the model on the baseline's tracks, scored beside the baseline (default); "
+                             "geometric: Joint Cloud -> K-Means persons -> weighted medoid + re-triangulation only")
+    parser.add_argument("--model", type=Path, default=None,
+                        help="a model folder written by training (<workdir>/model); default: the shipped "
+                             "jcsat/assets/shelf_cpu")
+    parser.add_argument("--data-root", type=Path, default=os.environ.get("MVMOCAP_DATA_ROOT"),
+                        help="folder containing shelf/ (actorsGT.mat, the OpenPose detections, 4d_association/); "
+                             "default $MVMOCAP_DATA_ROOT; without it a synthetic Shelf-rig scene is used and the "
+                             "output says SYNTHETIC")
     parser.add_argument("--out", type=Path, default=Path("runs/shelf_jcsat"),
-                        help="output folder for config.json, log.jsonl, predictions.jsonl, metrics.json, "
-                             "frame.png (default: %(default)s)")
+                        help="output folder (default: %(default)s)")
     parser.add_argument("--quick", action="store_true",
-                        help="smoke run under a minute: real data, the first 60 test frames; synthetic, "
-                             "40 frames of 3 people")
+                        help="smoke run: real data, the first 60 test frames; synthetic, 40 frames of 3 people; "
+                             "with --train, 300 steps on 4 scenes")
+    parser.add_argument("--views", type=int, nargs="+", default=None,
+                        help="cameras to keep, 0-based (paper Table 6); the others' detections are dropped")
+    parser.add_argument("--perturb-cameras", type=int, default=0, metavar="K",
+                        help="perturb the calibration of the first K kept cameras by up to 0.25 cm and 2.5 degrees "
+                             "(paper Table 8) before building the Joint Cloud (default: %(default)s)")
+    parser.add_argument("--perturb-seed", type=int, default=0, help="seed of that perturbation (default: %(default)s)")
+    parser.add_argument("--train", action="store_true",
+                        help="train a model from scratch into OUT/train on synthetic scenes, then evaluate it")
+    parser.add_argument("--resume", action="store_true", help="with --train: continue from OUT/train's last checkpoint")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="with --train: optimisation steps (default: jcsat.TrainConfig's)")
     parser.add_argument("--seed", type=int, default=0,
-                        help="seed of the synthetic scene and of the K-Means restarts (default: %(default)s)")
+                        help="seed of the synthetic scene, the K-Means restarts and training (default: %(default)s)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
     return parser.parse_args(argv)
+
+
+def _train(args: argparse.Namespace) -> Path:
+    config = jcsat.TrainConfig(seed=args.seed)
+    if args.quick:
+        config = dataclasses.replace(config, steps=300, warmup_steps=30, checkpoint_interval=100,
+                                     validation_interval=100, data=dataclasses.replace(config.data, num_scenes=4))
+    if args.steps is not None:
+        config = dataclasses.replace(config, steps=args.steps, warmup_steps=min(config.warmup_steps, args.steps))
+    workdir = args.out / "train"
+    jcsat.train(config, workdir, resume=args.resume)
+    return workdir / "model"
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     jax.config.update("jax_enable_x64", True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    model = _train(args) if args.train else args.model
     config = jcsat.ShelfExperimentConfig(
-        method=args.method, data_root=None if args.data_root is None else str(args.data_root),
+        method=args.method, model=None if model is None else str(model),
+        data_root=None if args.data_root is None else str(args.data_root),
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
         baseline=dataclasses.replace(jcsat.BaselineConfig(), seed=args.seed),
+        views=None if args.views is None else tuple(args.views),
+        perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed,
     )
-    args.out.mkdir(parents=True, exist_ok=True)
     log_path = args.out / "log.jsonl"
     log_path.write_text("")
-    bar = tqdm(total=len(_STAGES) - (0 if config.plot else 1), desc="shelf_jcsat", unit="stage")
+    stages = [s for s in _STAGES if (s != "plot" or config.plot) and (s != "jcsat" or config.method == "jcsat")]
+    bar = tqdm(total=len(stages), desc="shelf_jcsat", unit="stage")
 
     def log(event: dict) -> None:
         with log_path.open("a") as stream:
@@ -76,8 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     bar.update(1)
     bar.close()
     print(result.table)
-    print(f"outputs in {args.out}/ (predictions.jsonl, metrics.json, config.json, log.jsonl"
-          f"{', frame.png' if config.plot else ''}); total {result.metrics['total_seconds']:.1f} s")
+    print(f"outputs in {args.out}/; total {result.metrics['total_seconds']:.1f} s")
     return 0
 
 

@@ -24,7 +24,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Shaped
 
 from ._skeleton import SHELF15, Skeleton
 
-__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "to_shelf15", "to_shelf15_validity"]
+__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "shelf15_conversion_matrix", "to_shelf15", "to_shelf15_validity"]
 
 HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose", "h36m"]
 """How Shelf15 joints 12 (bottom of head) and 13 (top of head) are derived (metres, world z up).
@@ -223,6 +223,19 @@ def to_shelf15(
         top = SHELF15.index("head_top")
         out = out.at[..., top, :].add(_FACE_OFFSET_M * face).at[..., top, 2].add(_UP_OFFSET_M)
     return out
+
+
+def shelf15_conversion_matrix(source: Skeleton, head_rule: HeadRule | None = None) -> Float[np.ndarray, "15 J"]:
+    """The linear part of :func:`to_shelf15` as a ``(15, J)`` matrix: output joint k = sum_j M[k, j] source[j].
+
+    Exact for every rule that treats the three axes alike, except that the ``"4da"`` top of head also
+    has its face and up offsets (non-linear, left out here); raises ``ValueError`` for the VoxelPose
+    and MVPose rules, which stretch z. A learned joint-type conversion can start from it.
+    """
+    weights = _shelf15_table(source, head_rule).weights
+    if not np.array_equal(weights, np.repeat(weights[..., :1], 3, axis=-1)):
+        raise ValueError(f"the {head_rule!r} rule weights the axes differently: it has no single joint matrix")
+    return weights[..., 0].copy()
 
 
 @functools.partial(jax.jit, static_argnames=("source", "head_rule"))

@@ -5,6 +5,12 @@ Real data (``data_root`` holding ``shelf/``): the OpenPose detections of the sta
 ``shelf_protocol.md`` next to the 4D-association output (``shelf/4d_association/skel.txt``) scored by
 the same evaluator. Without data: a seeded synthetic scene with the Shelf rig and the realistic
 detector (:func:`mocap.synthesize_scene`), scored against its own ground truth, labelled synthetic.
+
+Method ``jcsat`` runs the geometric pipeline first (its tracks are the persons of Algorithm 1) and
+then the model on each track's causal windows (:func:`~jcsat.predict_shelf15`); both are scored, so
+the table has the model, the baseline and (on real data) the 4D-association output. ``views`` keeps
+a subset of the cameras (the others see nothing: paper Table 6); ``perturb_cameras`` builds the Joint
+Cloud with K cameras' calibration perturbed as in Table 8 (:func:`geometry.perturb_extrinsics_bounded`).
 """
 
 from __future__ import annotations
@@ -21,12 +27,21 @@ import numpy as np
 
 import mocap
 
+import geometry
+
+from ._inference import predict_shelf15
 from ._pipeline import BaselineConfig, BaselineResult, run_geometric_baseline
+from ._train import load_model
 
-__all__ = ["ShelfExperimentConfig", "ShelfExperimentResult", "run_shelf_experiment", "METHODS", "synthetic_validation"]
+__all__ = ["ShelfExperimentConfig", "ShelfExperimentResult", "run_shelf_experiment", "METHODS", "SHIPPED_MODEL",
+           "synthetic_validation"]
 
-METHODS: tuple[str, ...] = ("geometric",)
-"""Methods the experiment can run. JCSAT itself (the transformer) is a later issue."""
+METHODS: tuple[str, ...] = ("jcsat", "geometric")
+"""``jcsat``: the model on the Joint Cloud of the baseline's tracks (scored beside the baseline);
+``geometric``: the learning-free baseline alone."""
+
+SHIPPED_MODEL = Path(__file__).parent / "assets" / "shelf_cpu"
+"""The trained default model (``config.json`` + ``state.npz``; the README has the command that made it)."""
 
 _QUICK_REAL_FRAMES = 60
 
@@ -35,7 +50,9 @@ _QUICK_REAL_FRAMES = 60
 class ShelfExperimentConfig:
     """Everything that determines a run (saved as ``config.json``)."""
 
-    method: str = "geometric"
+    method: str = "jcsat"
+    model: str | None = None
+    """Folder written by :func:`~jcsat.train` (``<workdir>/model``); None: :data:`SHIPPED_MODEL`."""
     data_root: str | None = None
     """Folder with ``shelf/``; None runs the synthetic scene."""
     quick: bool = False
@@ -47,10 +64,19 @@ class ShelfExperimentConfig:
     plot: bool = True
     """Write ``frame.png`` (Joint Cloud of one person, baseline, ground truth, reprojections)."""
     baseline: BaselineConfig = BaselineConfig()
+    views: tuple[int, ...] | None = None
+    """Cameras kept (0-based); the others' detections are dropped. None: all."""
+    perturb_cameras: int = 0
+    """Number of cameras (the first K kept ones) whose calibration is perturbed for the Joint Cloud."""
+    perturb_seed: int = 0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.views is not None and len(set(self.views)) < 2:
+            raise ValueError(f"at least two distinct views are needed, got {self.views}")
+        if self.perturb_cameras < 0:
+            raise ValueError(f"perturb_cameras must be >= 0, got {self.perturb_cameras}")
 
 
 class ShelfExperimentResult(NamedTuple):
@@ -62,17 +88,41 @@ class ShelfExperimentResult(NamedTuple):
 
 
 def _score_table(scores: dict[str, dict[str, mocap.ShelfScore]], actors: tuple[int, ...]) -> str:
-    """Rows: method x protocol; columns: per-actor PCP, average, MPJPE (matched), misses."""
+    """Rows: method x protocol; columns: per-actor PCP, their average, joint precision and recall at 0.2 m,
+    MPJPE over matched instances and misses (averages over the averaged actors)."""
     head = " ".join(f"{'A' + str(a + 1):>6}" for a in actors)
-    lines = [f"{'method':<12} {'protocol':<10} {head} {'avg':>7} {'MPJPE mm':>9} {'misses':>6}"]
+    lines = [f"{'method':<12} {'protocol':<10} {head} {'avg':>7} {'prec':>6} {'recall':>6} {'MPJPE mm':>9} {'misses':>6}"]
     for method, by_protocol in scores.items():
         for protocol, score in by_protocol.items():
             by_actor = {s.actor: s for s in score.actors}
             cells = " ".join(f"{by_actor[a].pcp:6.1f}" if a in by_actor else f"{'-':>6}" for a in actors)
             misses = sum(by_actor[a].misses for a in score.averaged_actors)
             lines.append(f"{method:<12} {protocol:<10} {cells} {score.average['pcp']:7.2f} "
+                         f"{score.average['precision']:6.1f} {score.average['recall']:6.1f} "
                          f"{score.average['mpjpe_mm']:9.1f} {misses:6d}")
     return "\n".join(lines)
+
+
+def _keep_views(detections: list[list[mocap.Detections]], views: tuple[int, ...]) -> list[list[mocap.Detections]]:
+    """``detections`` with every view not in ``views`` emptied (the camera saw nothing)."""
+    num_views = len(detections[0])
+    if not set(views) <= set(range(num_views)):
+        raise ValueError(f"views {views} outside the rig's 0..{num_views - 1}")
+
+    def empty(det: mocap.Detections) -> mocap.Detections:
+        joints = tuple(c[:0] for c in det.joints)
+        return mocap.Detections(joints, tuple(np.zeros((0, 0)) for _ in det.pafs),
+                                None if det.person_ids is None else tuple(i[:0] for i in det.person_ids))
+
+    return [[det if v in views else empty(det) for v, det in enumerate(frame)] for frame in detections]
+
+
+def _perturbed(rig: geometry.Camera, cameras: tuple[int, ...], seed: int) -> geometry.Camera:
+    """``rig`` with ``cameras`` perturbed by the Table 8 bounds (0.25 cm, 2.5 degrees), the rest exact."""
+    noisy = geometry.perturb_extrinsics_bounded(jax.random.key(seed), rig)
+    chosen = np.isin(np.arange(rig.K.shape[0]), cameras)
+    return jax.tree.map(lambda exact, off: np.where(chosen.reshape((-1,) + (1,) * (np.ndim(exact) - 1)), off, exact),
+                        rig, noisy)
 
 
 def run_shelf_experiment(
@@ -115,17 +165,42 @@ def run_shelf_experiment(
         ground_truth = mocap.shelf_evaluation_ground_truth(root, frames=frame_indices)
         actors = (0, 1, 2, 3)
         data = {"kind": "shelf", "frames": [int(frame_indices[0]), int(frame_indices[-1])], "data_root": str(root)}
+    views = tuple(range(len(detections[0]))) if config.views is None else tuple(sorted(config.views))
+    if config.views is not None:
+        detections = _keep_views(detections, views)
+    exact_rig = rig
+    if config.perturb_cameras:
+        rig = _perturbed(rig, views[:config.perturb_cameras], config.perturb_seed)
+    data |= {"views": list(views), "perturbed_cameras": list(views[:config.perturb_cameras])}
     event("data", **data)
 
-    progress(config.method)
+    progress("geometric")
     result = run_geometric_baseline(rig, detections, frame_indices, config.baseline)
-    event(config.method, seconds={k: round(v, 3) for k, v in result.seconds.items()},
+    event("geometric", seconds={k: round(v, 3) for k, v in result.seconds.items()},
           tracks=int(result.present.shape[0]), predictions=int(result.predictions.num_predictions))
-    mocap.write_predictions(out / "predictions.jsonl", result.predictions)
+    compared = {"geometric": result.predictions}
+    track_poses = None
+    if config.method == "jcsat":
+        progress("jcsat")
+        model = load_model(SHIPPED_MODEL if config.model is None else config.model)
+        rows = result.predictions
+        position = np.searchsorted(frame_indices, rows.frame)
+        start = time.perf_counter()
+        poses = predict_shelf15(model, result.person_cloud, rows.person, position)
+        seconds = time.perf_counter() - start
+        result.seconds["jcsat"] = seconds
+        compared = {"jcsat": mocap.PosePredictions.create(rows.frame, rows.person, poses, score=rows.score), **compared}
+        track_poses = np.zeros(result.present.shape + (15, 3))
+        track_poses[rows.person, position] = poses
+        event("jcsat", seconds=round(seconds, 3), windows=len(position),
+              frames_per_second=round(len(frame_indices) / seconds, 2))
+    for name, predictions in compared.items():
+        mocap.write_predictions(out / ("predictions.jsonl" if name == config.method else f"predictions_{name}.jsonl"),
+                                predictions)
 
     progress("evaluation")
-    averaged = (0, 1, 2) if not synthetic else actors
-    compared = {config.method: result.predictions}
+    # Actors 1-3 (those annotated in the evaluated frames: actor 2 is absent from the first 60).
+    averaged = actors if synthetic else tuple(a for a in (0, 1, 2) if ground_truth.annotated[a].any())
     if not synthetic:
         four_da = mocap.predictions_from_4dassoc(Path(config.data_root) / "shelf" / "4d_association" / "skel.txt")
         compared["4DA output"] = mocap.PosePredictions.create(
@@ -136,7 +211,10 @@ def run_shelf_experiment(
     table = _score_table(scores, actors)
     kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesize_scene), NOT the real Shelf data" if synthetic
             else f"real Shelf, actorsGT frames {frame_indices[0]}..{frame_indices[-1]}")
-    title = (f"method: {config.method} (learning-free Joint Cloud baseline; JCSAT itself is not implemented yet)\n"
+    setting = f"views {list(views)}" + (f", perturbed cameras {list(views[:config.perturb_cameras])}"
+                                        if config.perturb_cameras else "")
+    title = (f"method: {config.method} ({'model: ' + str(config.model or SHIPPED_MODEL) + ', beside ' if config.method == 'jcsat' else ''}"
+             f"the learning-free Joint Cloud baseline 'geometric'); {setting}\n"
              f"data: {kind}; PCP averaged over actors {', '.join(str(a + 1) for a in averaged)}")
     metrics = {
         "method": config.method, "data": data, "synthetic": synthetic,
@@ -152,8 +230,10 @@ def run_shelf_experiment(
 
         frame = _plot_frame_choice(result, ground_truth.annotated)
         truth = ground_truth.joints[:, frame][ground_truth.annotated[:, frame]]
-        plot_frame(out / "frame.png", rig, mocap.pad_detections(detections, config.baseline.max_candidates), result, frame, truth,
-                   title=f"{'synthetic' if synthetic else 'Shelf'} frame {int(frame_indices[frame])}")
+        plot_frame(out / "frame.png", exact_rig, mocap.pad_detections(detections, config.baseline.max_candidates), result,
+                   frame, truth, title=f"{config.method}, {'synthetic' if synthetic else 'Shelf'} frame "
+                                       f"{int(frame_indices[frame])}",
+                   track_poses=None if track_poses is None else track_poses[:, frame])
         metrics["plot"] = {"file": "frame.png", "frame": int(frame_indices[frame])}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     event("done", total_seconds=metrics["total_seconds"])

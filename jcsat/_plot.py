@@ -39,17 +39,20 @@ def _track_shelf15(result: BaselineResult, frame: int) -> np.ndarray:
     return np.where(valid[..., None], shelf15, 0.0)
 
 
-def matched_tracks(result: BaselineResult, frame: int, ground_truth: np.ndarray) -> dict[int, int]:
+def matched_tracks(
+    result: BaselineResult, frame: int, ground_truth: np.ndarray, track_poses: np.ndarray | None = None
+) -> dict[int, int]:
     """Output tracks present in ``frame`` that match a ground-truth person: ``{track: person}``.
 
     Only tracks in the predictions count (short-lived tracks are not output); each ground-truth
     person takes its nearest track by mean joint distance if below :data:`MATCH_DISTANCE_M`.
+    ``track_poses`` are the Shelf15 poses ``(T, 15, 3)`` judged (default: the baseline's).
     """
     output = set(np.unique(result.predictions.person).tolist())
     tracks = [t for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
     if not tracks or not len(ground_truth):
         return {}
-    joints = _track_shelf15(result, frame)[tracks]
+    joints = (_track_shelf15(result, frame) if track_poses is None else track_poses)[tracks]
     distance = np.linalg.norm(joints[:, None] - ground_truth[None], axis=-1).mean(-1)  # (tracks, people)
     matches = {}
     for person in range(len(ground_truth)):
@@ -67,12 +70,14 @@ def plot_frame(
     frame: int,
     ground_truth: np.ndarray,
     title: str = "",
+    track_poses: np.ndarray | None = None,
 ) -> None:
     """Write the figure for ``frame`` (index into the run's frames) to ``path`` (PNG).
 
     ``padded`` are the run's :class:`mocap.PaddedDetections`, ``ground_truth`` the annotated
     people's SHELF15 joints in that frame ``(people, 15, 3)``. The Joint Cloud shown is that of the
-    track with the most clustered candidates in the frame, coloured by BODY25 joint type.
+    track with the most clustered candidates in the frame, coloured by BODY25 joint type. The
+    skeletons drawn are ``track_poses`` ``(T, 15, 3)`` (default: the baseline's poses).
     """
     import matplotlib
 
@@ -81,7 +86,8 @@ def plot_frame(
 
     output = set(np.unique(result.predictions.person).tolist())
     present = [int(t) for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
-    matches = matched_tracks(result, frame, ground_truth)
+    shelf15 = _track_shelf15(result, frame) if track_poses is None else track_poses
+    matches = matched_tracks(result, frame, ground_truth, shelf15)
     label = np.asarray(result.clusters.label[frame])  # (P, J, C, C)
     slots = np.flatnonzero(np.asarray(result.clusters.active[frame]))
     counts = [(label == s).sum() for s in slots]
@@ -89,7 +95,6 @@ def plot_frame(
     chosen = label == slot
     points = np.asarray(result.cloud.point[frame])[chosen]  # (n, 3)
     joint_type = np.nonzero(chosen)[1]
-    shelf15 = _track_shelf15(result, frame)
 
     def track_style(t: int) -> dict:
         if t in matches:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from geometry import (BODY25, COCO17, H36M17, HEAD_RULES, SHELF14, SHELF15, SKEL19, Skeleton,
+from geometry import (BODY25, shelf15_conversion_matrix, COCO17, H36M17, HEAD_RULES, SHELF14, SHELF15, SKEL19, Skeleton,
                       aggregate_precision_recall, joint_precision_recall, mpjpe, pcp, remap_joints, to_shelf15,
                       to_shelf15_validity)
 from mocap import match_predictions
@@ -165,6 +165,20 @@ def test_rules_differ_where_they_should():
                 assert np.abs(heads[a] - heads[b]).max() > 1e-3, (a, b)
     others = [np.asarray(to_shelf15(coco, COCO17, rule))[..., [*range(12), 14], :] for rule in face_rules]
     assert all(np.array_equal(others[0], o) for o in others)
+
+
+def test_conversion_matrix_is_the_linear_part_of_to_shelf15():
+    points = np.random.default_rng(2).normal(size=(5, BODY25.num_joints, 3))
+    direct = np.asarray(to_shelf15(points, BODY25))
+    linear = np.einsum("kj,fjc->fkc", shelf15_conversion_matrix(BODY25), points)
+    top = SHELF15.index("head_top")
+    others = np.arange(SHELF15.num_joints) != top
+    assert_allclose(linear[:, others], direct[:, others], atol=1e-12)
+    assert np.all(np.linalg.norm(linear[:, top] - direct[:, top], axis=-1) > 0.01)  # |0.125 face + 0.145 up| >= 0.02
+    campus = np.einsum("kj,fjc->fkc", shelf15_conversion_matrix(BODY25, "voxelpose_campus"), points)
+    assert_allclose(campus, np.asarray(to_shelf15(points, BODY25, "voxelpose_campus")), atol=1e-12)
+    with pytest.raises(ValueError, match="axes differently"):
+        shelf15_conversion_matrix(BODY25, "voxelpose_shelf")
 
 
 def test_h36m17_source_takes_neck_nose_and_head():

@@ -91,7 +91,7 @@ def test_temporal_outlier_rejection():
 
 
 def test_experiment_end_to_end(tmp_path):
-    config = jcsat.ShelfExperimentConfig(synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
+    config = jcsat.ShelfExperimentConfig(method="geometric", synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
     events = []
     result = jcsat.run_shelf_experiment(config, tmp_path, log=events.append)
     assert "SYNTHETIC" in result.table and "geometric" in result.table
@@ -102,7 +102,7 @@ def test_experiment_end_to_end(tmp_path):
     assert (tmp_path / "frame.png").stat().st_size > 10_000
     assert [e["stage"] for e in events][-1] == "done"
     with pytest.raises(ValueError, match="method"):
-        jcsat.ShelfExperimentConfig(method="jcsat")
+        jcsat.ShelfExperimentConfig(method="voxelpose")
 
 
 def test_reprojection_check_adds_views_and_rejects_far_detections():

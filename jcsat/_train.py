@@ -1,0 +1,327 @@
+"""Training the JCSAT model on synthetic Shelf-rig windows (paper Sec. 4.1.3; reference section 4).
+
+:func:`train` builds (or loads from the cache) the training and validation windows
+(:func:`~jcsat.build_dataset`), splits the Flax NNX model into a graph definition and pure state,
+and runs one jitted, data-parallel step per iteration: AdamW (weight decay on matrices only) with a
+linear warm-up and a cosine decay, on the losses of Eq. 15. Step s draws its batch, rotations and
+candidate masking from ``fold_in(key(seed), s)`` and nothing else, so a run resumed from a checkpoint
+continues exactly as an uninterrupted one.
+
+Outputs in ``workdir``: ``config.json``; ``log.jsonl`` (one JSON object per logged step: losses, lr,
+seconds per step, and at validation steps MPJPE in mm and PCP in % on held-out synthetic windows);
+``checkpoints/<step>/`` (orbax, atomic, the last two kept); ``model/`` (``config.json`` and
+``state.npz``, the final parameters, read back by :func:`load_model`).
+
+Data parallelism: a one-axis mesh ``"data"`` over the local devices shards every batch along its
+first axis and replicates parameters and optimiser state; ``batch_size`` must be a multiple of the
+device count. On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before jax starts)
+gives N devices.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+import tqdm
+from flax import nnx
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+import geometry
+from geometry import SHELF15
+
+from ._data import VALIDATION_CLIPS, Batch, DataConfig, WindowDataset, build_dataset, sample_batch, window_batch
+from ._losses import LossConfig, jcsat_loss
+from ._model import CONFIGS, JCSAT, JCSATConfig
+
+__all__ = [
+    "TrainConfig", "TrainState", "init_state", "learning_rate_schedule", "make_optimizer", "train_step", "train",
+    "load_model",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run (written to ``config.json``)."""
+
+    model: str | JCSATConfig = "cpu"
+    """A name in :data:`~jcsat.CONFIGS` or a :class:`~jcsat.JCSATConfig`."""
+    batch_size: int = 8
+    steps: int = 2_400
+    peak_lr: float = 1e-3
+    warmup_steps: int = 100
+    """Linear warm-up from 0 to ``peak_lr``; a cosine decay to ``end_lr`` follows until ``steps``.
+    These defaults are the shipped CPU model's run (about an hour on 2 CPU cores): a short schedule
+    with the usual small-transformer rate. The official code trains 'medium' with 1.5e-4 for 500
+    epochs (the paper's "beginning with 1e-5" is the cosine's end), a GPU-scale budget."""
+    end_lr: float = 1e-5
+    weight_decay: float = 0.05
+    """AdamW decoupled weight decay, applied to parameters with at least 2 dimensions only (no biases,
+    LayerNorm scales or other vectors)."""
+    grad_clip: float | None = None
+    """Global-norm gradient clipping; None: off (paper and code)."""
+    seed: int = 0
+    """Model initialisation and every step's randomness (``fold_in(key(seed), step)``)."""
+    checkpoint_interval: int = 200
+    validation_interval: int = 400
+    log_interval: int = 50
+    validation_windows: int = 512
+    """Validation uses the first this many validation windows (fewer if there are fewer), unrotated."""
+    losses: LossConfig = LossConfig()
+    data: DataConfig = DataConfig()
+    validation_data: DataConfig = DataConfig(clips=VALIDATION_CLIPS, num_scenes=4, first_seed=10_000)
+    cache_dir: str | None = None
+    """Where built datasets are cached; None: ``<workdir>/data_cache``."""
+
+    def __post_init__(self) -> None:
+        for name in ("batch_size", "steps", "checkpoint_interval", "validation_interval", "log_interval",
+                     "validation_windows"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.warmup_steps <= self.steps:
+            raise ValueError(f"warmup_steps must be in [0, steps={self.steps}], got {self.warmup_steps}")
+        if isinstance(self.model, str) and self.model not in CONFIGS:
+            raise ValueError(f"model must be one of {sorted(CONFIGS)} or a JCSATConfig, got {self.model!r}")
+        model_window = (CONFIGS[self.model] if isinstance(self.model, str) else self.model).frames
+        if not self.data.window == self.validation_data.window == model_window:
+            raise ValueError(f"training and validation windows must have the model's length {model_window}")
+        shared_seeds = set(self.data.seeds) & set(self.validation_data.seeds)
+        if shared_seeds:
+            raise ValueError(f"training and validation scenes share seeds {sorted(shared_seeds)[:5]}")
+
+
+class TrainState(NamedTuple):
+    """Everything a step changes, plus the run's key: exactly what a checkpoint holds."""
+
+    params: Any
+    rest: Any
+    """The model's non-parameter state (fixed random features, RNG counters, ...)."""
+    opt_state: optax.OptState
+    step: jax.Array
+    """Number of steps taken."""
+    key: jax.Array
+    """``key(seed)``: step s uses ``fold_in(key, s)``."""
+
+
+def init_state(config: TrainConfig, params: Any, rest: Any) -> TrainState:
+    """Step 0: fresh optimiser state for ``params`` and the run's key ``key(config.seed)``."""
+    opt_state = make_optimizer(config, params).init(params)
+    return TrainState(params, rest, opt_state, jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
+
+
+_sample = jax.jit(sample_batch, static_argnums=(2, 3))
+_window_batch = jax.jit(window_batch, static_argnums=3)
+
+
+def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
+    """Linear warm-up from 0 to ``peak_lr`` over ``warmup_steps``, then cosine decay to ``end_lr`` at ``steps``."""
+    return optax.warmup_cosine_decay_schedule(0.0, config.peak_lr, config.warmup_steps, config.steps, config.end_lr)
+
+
+def make_optimizer(config: TrainConfig, params: Any) -> optax.GradientTransformation:
+    """AdamW (beta 0.9, 0.999) on :func:`learning_rate_schedule`, decaying only parameters with ndim >= 2."""
+    decay = jax.tree.map(lambda p: p.ndim >= 2, params)
+    adamw = optax.adamw(learning_rate_schedule(config), b1=0.9, b2=0.999, weight_decay=config.weight_decay, mask=decay)
+    return adamw if config.grad_clip is None else optax.chain(optax.clip_by_global_norm(config.grad_clip), adamw)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2))
+def train_step(
+    graphdef: nnx.GraphDef, config: TrainConfig, replicated: NamedSharding, state: TrainState, batch: Batch,
+    key: jax.Array,
+) -> tuple[TrainState, dict[str, jax.Array]]:
+    """One AdamW step on ``batch`` (Eq. 15); ``key`` drives the model's candidate masking and dropout.
+
+    Pure: the new state and the step's metrics (each loss term, the total, the gradient norm). With
+    the batch sharded along its first axis, each device computes its part of the batch and the
+    gradient is reduced across devices; the new state is constrained to ``replicated``. The static
+    arguments are hashable, so every :func:`train` call with the same model and config reuses one
+    compilation.
+    """
+
+    def loss_fn(params):
+        model = nnx.merge(graphdef, params, state.rest)
+        pred = model(batch.points, batch.mask, key=key)
+        total, terms = jcsat_loss(pred, batch, config.losses)
+        return total, (terms, nnx.state(model, nnx.Not(nnx.Param)))
+
+    (total, (terms, rest)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+    updates, opt_state = make_optimizer(config, state.params).update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    new_state = TrainState(params, rest, opt_state, state.step + 1, state.key)
+    metrics = {"loss": total, **terms, "grad_norm": optax.tree.norm(grads)}
+    return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
+
+
+@partial(jax.jit, static_argnums=0)
+def _eval_step(graphdef: nnx.GraphDef, state: TrainState, batch: Batch, weight: jax.Array):
+    """Per-batch sums for MPJPE and PCP over the valid frames of the windows with ``weight`` 1."""
+    model = nnx.merge(graphdef, state.params, state.rest)
+    pred = model(batch.points, batch.mask).astype(batch.target.dtype)
+    valid = batch.target_valid & (weight[:, None] > 0)
+    error = geometry.mpjpe(pred, batch.target)  # (B, N), metres
+    correct = geometry.pcp(pred, batch.target, SHELF15, strict=True)  # (B, N, 10)
+    return {
+        "error_sum": jnp.sum(jnp.where(valid, error, 0.0)),
+        "correct_sum": jnp.sum(jnp.where(valid[..., None], correct, False)),
+        "frames": jnp.sum(valid),
+    }
+
+
+def _shardings(batch_size: int) -> tuple[NamedSharding, NamedSharding]:
+    devices = jax.local_devices()
+    if batch_size % len(devices):
+        raise ValueError(f"batch_size {batch_size} must be a multiple of the {len(devices)} local devices "
+                         "(data parallelism splits every batch evenly)")
+    mesh = Mesh(np.array(devices), ("data",))
+    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("data"))
+
+
+def _validate(eval_step, state, data: WindowDataset, config: TrainConfig, batch_sharding) -> dict[str, float]:
+    """MPJPE (mm) and strict PCP (%) of the model over the valid frames of the first validation windows."""
+    count = min(config.validation_windows, data.num_windows)
+    sums = {"error_sum": 0.0, "correct_sum": 0.0, "frames": 0.0}
+    for first in range(0, count, config.batch_size):
+        index = np.arange(first, first + config.batch_size)
+        weight = (index < count).astype(np.float32)
+        batch = _window_batch(data, np.minimum(index, count - 1), np.zeros(config.batch_size), config.data.window)
+        out = eval_step(state, jax.device_put(batch, batch_sharding), jax.device_put(weight, batch_sharding))
+        sums = {k: sums[k] + float(v) for k, v in out.items()}
+    frames = max(sums["frames"], 1.0)
+    return {"val_mpjpe_mm": 1000.0 * sums["error_sum"] / frames,
+            "val_pcp": 100.0 * sums["correct_sum"] / (frames * len(SHELF15.pcp_parts)),
+            "val_frames": int(sums["frames"])}
+
+
+def _to_jsonable(value: Any) -> Any:
+    return json.loads(json.dumps(value, default=lambda v: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else str(v)))
+
+
+def _truncate_log(path: Path, last_step: int) -> None:
+    """Drop log lines past the restored step (or all of a run killed before its first checkpoint):
+    the run writes them again, identically."""
+    if path.is_file():
+        lines = [line for line in path.read_text().splitlines() if json.loads(line)["step"] <= last_step]
+        path.write_text("".join(line + "\n" for line in lines))
+
+
+def _save_model(path: Path, model_config: JCSATConfig, params: Any, rest: Any) -> None:
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "config.json").write_text(json.dumps(_to_jsonable(model_config), indent=2) + "\n")
+    leaves = jax.tree_util.tree_flatten_with_path(_storable(nnx.merge_state(params, rest)))[0]
+    np.savez(path / "state.npz", **{jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves})
+
+
+def _storable(state: Any) -> Any:
+    """The state without RNG keys and counters (they only seed training-time randomness)."""
+    return nnx.filter_state(state, nnx.Not(nnx.RngState))
+
+
+def load_model(path: str | Path) -> JCSAT:
+    """The model written by :func:`train` to ``<workdir>/model``, with the trained parameters."""
+    path = Path(path)
+    fields = json.loads((path / "config.json").read_text())
+    model = JCSAT(JCSATConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}),
+                  rngs=nnx.Rngs(0))
+    state = nnx.state(model)
+    stored = _storable(state)
+    with np.load(path / "state.npz") as arrays:
+        leaves, treedef = jax.tree_util.tree_flatten_with_path(stored)
+        values = [jnp.asarray(arrays[jax.tree_util.keystr(k)], v.dtype) for k, v in leaves]
+    nnx.update(model, jax.tree_util.tree_unflatten(treedef, values))
+    return model
+
+
+def train(
+    config: TrainConfig,
+    workdir: str | Path,
+    *,
+    resume: bool,
+    log: Callable[[dict], None] = lambda record: None,
+    progress: bool = True,
+) -> JCSAT:
+    """Train per ``config`` in ``workdir`` and return the final model (see the module docstring for the files).
+
+    ``resume=True`` continues from the latest checkpoint in ``workdir`` (refusing a different
+    config); ``resume=False`` refuses a ``workdir`` that already has checkpoints. ``log`` receives
+    every record written to ``log.jsonl``; ``progress`` shows a tqdm bar.
+    """
+    workdir = Path(workdir).resolve()
+    workdir.mkdir(parents=True, exist_ok=True)
+    config_json = json.dumps(_to_jsonable(dataclasses.asdict(config)), indent=2, sort_keys=True) + "\n"
+    config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
+    if resume and config_path.is_file() and config_path.read_text() != config_json:
+        raise ValueError(f"{config_path} differs from the config passed: resume only the same run")
+    replicated, batch_sharding = _shardings(config.batch_size)
+    cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
+    train_data = jax.device_put(build_dataset(config.data, cache_dir), replicated)
+    validation_data = jax.device_put(build_dataset(config.validation_data, cache_dir), replicated)
+    if train_data.num_windows == 0 or validation_data.num_windows == 0:
+        raise ValueError("no training or validation windows: more scenes or frames are needed")
+
+    model_config = CONFIGS[config.model] if isinstance(config.model, str) else config.model
+    model = JCSAT(model_config, rngs=nnx.Rngs(config.seed))
+    graphdef, params, rest = nnx.split(model, nnx.Param, ...)
+    state = init_state(config, params, rest)
+
+    options = ocp.CheckpointManagerOptions(max_to_keep=2)
+    with ocp.CheckpointManager(workdir / "checkpoints", options=options) as manager:
+        latest = manager.latest_step()
+        if latest is not None and not resume:
+            raise ValueError(f"{workdir} already has checkpoints (step {latest}); pass resume=True or a new workdir")
+        if latest is not None:
+            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
+            state = TrainState(**manager.restore(latest, args=ocp.args.StandardRestore(abstract._asdict())))
+        _truncate_log(log_path, 0 if latest is None else latest)
+        config_path.write_text(config_json)
+        state = jax.device_put(state, replicated)
+
+        eval_fn = partial(_eval_step, graphdef)
+        schedule = learning_rate_schedule(config)
+
+        first = int(state.step)
+        timer_start, timer_steps = None, 0
+        bar = tqdm.tqdm(total=config.steps, initial=first, disable=not progress, desc="jcsat train")
+        with log_path.open("a") as log_file:
+            for step in range(first, config.steps):
+                sample_key, mask_key = jax.random.split(jax.random.fold_in(state.key, step))
+                batch = _sample(train_data, sample_key, config.batch_size, config.data.window)
+                state, metrics = train_step(graphdef, config, replicated, state, jax.device_put(batch, batch_sharding),
+                                            mask_key)
+                done = step + 1
+                timer_steps += 1
+                record: dict[str, Any] = {}
+                if done % config.log_interval == 0 or done == config.steps:
+                    record.update({k: float(v) for k, v in metrics.items()})
+                    record["lr"] = float(schedule(step))
+                    if timer_start is not None:
+                        record["seconds_per_step"] = (time.perf_counter() - timer_start) / timer_steps
+                    bar.set_postfix(loss=f"{record['loss']:.4g}")
+                if done % config.validation_interval == 0 or done == config.steps:
+                    record.update(_validate(eval_fn, state, validation_data, config, batch_sharding))
+                if done % config.checkpoint_interval == 0 or done == config.steps:
+                    manager.save(done, args=ocp.args.StandardSave(state._asdict()))
+                if record:
+                    record = {"step": done, **record}
+                    log_file.write(json.dumps(record) + "\n")
+                    log_file.flush()
+                    log(record)
+                if record or timer_start is None:
+                    # Timings cover training steps only: not the first (compiling) step, validation or saving.
+                    jax.block_until_ready(state)
+                    timer_start, timer_steps = time.perf_counter(), 0
+                bar.update(1)
+        bar.close()
+        manager.wait_until_finished()
+    _save_model(workdir / "model", model_config, state.params, state.rest)
+    return nnx.merge(graphdef, state.params, state.rest)
