@@ -29,18 +29,9 @@ from flax import nnx  # noqa: E402
 
 import jcsat  # noqa: E402
 import mocap  # noqa: E402
+from experiments.bench_geometry import best_time  # noqa: E402
 
 _DEFAULT_DATA_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data"
-
-
-def _best_seconds(fn, repeats: int) -> float:
-    fn()  # compiles
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
               "medium": (jcsat.JCSAT(jcsat.CONFIGS["medium"], rngs=nnx.Rngs(0)), min(args.medium_frames, frames))}
     for name, (model, timed_frames) in models.items():
         chosen = position < timed_frames
-        seconds = _best_seconds(lambda: jcsat.predict_shelf15(model, baseline.person_cloud, rows.person[chosen],
+        seconds = best_time(lambda: jcsat.predict_shelf15(model, baseline.person_cloud, rows.person[chosen],
                                                               position[chosen]), args.repeats)
         result[f"{name}_parameters"] = jcsat.parameter_count(model)
         result[f"{name}_windows_per_s"] = round(int(chosen.sum()) / seconds, 2)
