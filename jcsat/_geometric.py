@@ -224,12 +224,14 @@ def reject_temporal_outliers(
 ) -> Float[np.ndarray, "F J 3"]:
     """Replace each valid joint farther than ``max_deviation`` (metres) from its temporal median by that median.
 
-    The median is per coordinate over the valid frames within ``half_window`` frames on either side
-    (the frame itself included), and only used where at least ``half_window + 1`` of them exist, so
-    that an isolated detection is not judged by one or two neighbours. Human joints move a few
-    centimetres per frame, so a joint that jumps far from where it was both before and after is a
-    wrong association, not motion. ``half_window = 0`` returns ``joints`` unchanged; ``max_deviation = 0``
-    is a plain temporal median filter.
+    The median is per coordinate over the valid frames of a window centred on the frame: ``half_window``
+    frames on either side, fewer near the joint's first and last valid frames so that the window stays
+    symmetric (a one-sided window's median lags a moving joint, and would flag fast motion as an
+    outlier; a centred one equals the frame itself for any steady motion). It is only used where at
+    least three and a majority of the window's frames are valid, so that a joint is not judged by one
+    or two neighbours. Human joints move a few centimetres per frame, so a joint that jumps far from
+    where it was both before and after is a wrong association, not motion. ``half_window = 0`` returns
+    ``joints`` unchanged; ``max_deviation = 0`` is a plain (centred) temporal median filter.
     """
     joints = np.asarray(joints, float)
     valid = np.asarray(valid, bool)
@@ -238,10 +240,18 @@ def reject_temporal_outliers(
     if half_window == 0:
         return joints
     frames = joints.shape[0]
+    index = np.arange(frames)[:, None]
+    first = np.argmax(valid, axis=0)[None, :]
+    last = frames - 1 - np.argmax(valid[::-1], axis=0)[None, :]
+    radius = np.clip(np.minimum(index - first, last - index), 0, half_window)  # (F, J)
+    offsets = np.arange(-half_window, half_window + 1)
+    inside = np.abs(offsets)[None, :, None] <= radius[:, None, :]  # (F, W, J)
     masked = np.where(valid[..., None], joints, np.nan)
     padded = np.pad(masked, ((half_window, half_window), (0, 0), (0, 0)), constant_values=np.nan)
     windows = np.stack([padded[k:k + frames] for k in range(2 * half_window + 1)], axis=1)  # (F, W, J, 3)
-    enough = np.sum(np.isfinite(windows[..., 0]), axis=1) > half_window
+    windows = np.where(inside[..., None], windows, np.nan)
+    count = np.sum(np.isfinite(windows[..., 0]), axis=1)
+    enough = (count >= 3) & (count > radius)
     with np.errstate(all="ignore"):
         median = np.nanmedian(np.where(enough[:, None, :, None], windows, 0.0), axis=1)
     outlier = valid & enough & (np.linalg.norm(joints - median, axis=-1) > max_deviation)
