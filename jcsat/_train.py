@@ -61,7 +61,7 @@ class TrainConfig:
     peak_lr: float = 1e-3
     warmup_steps: int = 100
     """Linear warm-up from 0 to ``peak_lr``; a cosine decay to ``end_lr`` follows until ``steps``.
-    These defaults are the shipped CPU model's run (about an hour on 2 CPU cores): a short schedule
+    These defaults are the shipped CPU model's run (36 minutes on 2 CPU cores): a short schedule
     with the usual small-transformer rate. The official code trains 'medium' with 1.5e-4 for 500
     epochs (the paper's "beginning with 1e-5" is the cosine's end), a GPU-scale budget."""
     end_lr: float = 1e-5
@@ -230,6 +230,9 @@ def _storable(state: Any) -> Any:
 def load_model(path: str | Path) -> JCSAT:
     """The model written by :func:`train` to ``<workdir>/model``, with the trained parameters."""
     path = Path(path)
+    missing = [name for name in ("config.json", "state.npz") if not (path / name).is_file()]
+    if missing:
+        raise FileNotFoundError(f"{path} is not a model folder written by jcsat.train: no {', '.join(missing)}")
     fields = json.loads((path / "config.json").read_text())
     model = JCSAT(JCSATConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}),
                   rngs=nnx.Rngs(0))
