@@ -1,7 +1,7 @@
 """Speed of the batched, jitted Structural Triangulation against the per-frame NumPy port.
 
 Run: ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= .venv/bin/python -m experiments.bench_structri --json``
-(about a minute on 2 CPU cores). Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
+(about 15 s on 2 CPU cores). Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
 NumPy per frame, float64, H36M17, virtual round ring), the speed-up, the max relative difference, the
 compile times, and the optimistix reference's time per frame.
 """
@@ -60,24 +60,20 @@ def make_problem(cfg: Config):
     return points, P, lengths
 
 
-def _best_time(fn, repeats):
-    best = np.inf
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
 def _compare(name, jax_fn, numpy_fn, points, cfg):
+    """Best of ``cfg.repeats`` rounds, each timing both contenders in turn (shared machines drift)."""
     t = time.perf_counter()
     out = jax.block_until_ready(jax_fn(points))
     compile_s = time.perf_counter() - t
-    jax_s = _best_time(lambda: jax_fn(points), cfg.repeats)
     few = points[:cfg.numpy_frames]
-    t = time.perf_counter()
-    ref = np.stack([numpy_fn(p) for p in few])
-    numpy_s = time.perf_counter() - t
+    jax_s = numpy_s = np.inf
+    for _ in range(cfg.repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(jax_fn(points))
+        jax_s = min(jax_s, time.perf_counter() - t)
+        t = time.perf_counter()
+        ref = np.stack([numpy_fn(p) for p in few])
+        numpy_s = min(numpy_s, time.perf_counter() - t)
     ours = np.asarray(out)[:cfg.numpy_frames]
     jax_fps, numpy_fps = cfg.frames / jax_s, cfg.numpy_frames / numpy_s
     return {f"{name}_jax_frames_per_s": jax_fps, f"{name}_compile_s": compile_s,
