@@ -1,0 +1,43 @@
+"""FLEX (Gordon, Raab et al., ECCV 2022): extrinsic-free multi-view motion reconstruction.
+
+The network (fusion layers F_Q / F_S with multi-view convolution and cross-view attention, encoders E_Q / E_S,
+forward kinematics of the :data:`geometry.FLEX20` skeleton, per-joint rotation discriminator), its losses
+(Eq. 3-9), the calibration-free input normalisation, and training samples from 3D motion seen by static or
+moving virtual cameras. Each private module defines ``__all__``; the public names are re-exported here.
+"""
+
+from ._data import local_rotations as local_rotations
+from ._data import make_batch as make_batch
+from ._data import make_sample as make_sample
+from ._data import root_frame as root_frame
+from ._data import symmetric_bone_lengths as symmetric_bone_lengths
+from ._data import Batch as Batch
+from ._data import DataConfig as DataConfig
+from ._losses import adversarial_loss as adversarial_loss
+from ._losses import contact_loss as contact_loss
+from ._losses import contact_velocity_loss as contact_velocity_loss
+from ._losses import discriminator_loss as discriminator_loss
+from ._losses import generator_loss as generator_loss
+from ._losses import position_loss as position_loss
+from ._losses import root_loss as root_loss
+from ._losses import skeleton_loss as skeleton_loss
+from ._losses import LossWeights as LossWeights
+from ._model import flex_forward_kinematics as flex_forward_kinematics
+from ._model import parameter_count as parameter_count
+from ._model import CONFIGS as CONFIGS
+from ._model import Discriminator as Discriminator
+from ._model import Flex as Flex
+from ._model import FlexConfig as FlexConfig
+from ._model import FlexOutputs as FlexOutputs
+from ._model import RotationDiscriminator as RotationDiscriminator
+from ._normalise import normalise_2d as normalise_2d
+from ._normalise import normalise_view as normalise_view
+from ._normalise import NormalisedInput as NormalisedInput
+
+__all__ = [
+    "adversarial_loss", "Batch", "CONFIGS", "contact_loss", "contact_velocity_loss", "DataConfig", "Discriminator",
+    "discriminator_loss", "Flex", "flex_forward_kinematics", "FlexConfig", "FlexOutputs", "generator_loss",
+    "local_rotations", "LossWeights", "make_batch", "make_sample", "normalise_2d", "normalise_view",
+    "NormalisedInput", "parameter_count", "position_loss", "root_frame", "root_loss", "RotationDiscriminator",
+    "skeleton_loss", "symmetric_bone_lengths",
+]

@@ -22,9 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Shaped
 
-from ._skeleton import SHELF15, Skeleton
+from ._skeleton import FLEX20, FLEX20_DUPLICATE_OF, H36M17, SHELF15, Skeleton
 
-__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "shelf15_conversion_matrix", "to_shelf15", "to_shelf15_validity"]
+__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "flex20_from_h36m17", "shelf15_conversion_matrix", "to_shelf15",
+           "to_shelf15_validity"]
 
 HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose", "h36m"]
 """How Shelf15 joints 12 (bottom of head) and 13 (top of head) are derived (metres, world z up).
@@ -94,6 +95,20 @@ def remap_joints(
         raise KeyError(f"{source.name} -> {target.name}: the source has no joints {missing}")
     index = np.array([source.index(name) for name in target.joints], dtype=np.int32)
     return jnp.take(jnp.asarray(points), index, axis=-2)
+
+
+_FLEX20_FROM_H36M17 = np.array(
+    [H36M17.index(FLEX20_DUPLICATE_OF.get(name, name)) for name in FLEX20.joints], dtype=np.int32)
+
+
+@jax.jit
+def flex20_from_h36m17(points: Shaped[ArrayLike, "*b 17 C"]) -> Shaped[Array, "*b 20 C"]:
+    """:data:`~geometry.H36M17` joints in :data:`~geometry.FLEX20` order, the duplicates copied from the joints
+    they coincide with (:data:`~geometry.FLEX20_DUPLICATE_OF`); any trailing channel count C.
+
+    The inverse, dropping the duplicates, is ``remap_joints(points, FLEX20, H36M17)``."""
+    _check_points(points, H36M17)
+    return jnp.take(jnp.asarray(points), _FLEX20_FROM_H36M17, axis=-2)
 
 
 class _Shelf15Table(NamedTuple):

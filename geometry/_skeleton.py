@@ -211,6 +211,67 @@ SMPL24 = _tree(
 )
 """SMPL's 24-joint kinematic tree (joint 0 is the pelvis)."""
 
-SKELETONS: dict[str, Skeleton] = {s.name: s for s in (BODY25, COCO17, SHELF14, SHELF15, SKEL19, H36M17, SMPL24)}
+FLEX20 = _tree(
+    "FLEX20",
+    ("mid_hip", "r_hip", "r_knee", "r_ankle", "l_hip", "l_knee", "l_ankle", "spine_base", "spine", "thorax",
+     "neck_nose", "head", "l_thorax", "l_shoulder", "l_elbow", "l_wrist", "r_thorax", "r_shoulder", "r_elbow",
+     "r_wrist"),
+    {"mid_hip": None, "r_hip": "mid_hip", "l_hip": "mid_hip", "spine_base": "mid_hip", "spine": "spine_base",
+     "thorax": "spine", "neck_nose": "thorax", "head": "neck_nose", "l_thorax": "spine", "r_thorax": "spine",
+     "l_shoulder": "l_thorax", "r_shoulder": "r_thorax", **_ARMS_LEGS},
+    pcp_parts=_LIMB_PARTS,
+)
+"""FLEX's kinematic skeleton (Gordon et al., ECCV 2022, App. C; official parents
+``[-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 10, 8, 12, 13, 14, 8, 16, 17, 18]``): the 17 Human3.6M joints plus three
+duplicates that let the bones next to the root and the neck turn independently. ``spine_base`` sits on
+``mid_hip`` (zero offset) and carries the spine; ``l_thorax`` and ``r_thorax`` sit on ``thorax`` (children of
+``spine`` with the thorax's offset) and carry the arms, so the shoulders move independently of the neck.
+:data:`FLEX20_DUPLICATE_OF` names the joint each duplicate coincides with. The other joints have their
+:data:`H36M17` names, so ``geometry.remap_joints(points, FLEX20, H36M17)`` drops the duplicates (the
+17-joint MPJPE) and :func:`~geometry.flex20_from_h36m17` adds them. ``mid_hip`` is the Human3.6M pelvis,
+the centre of the hips in FLEX's rest pose (hips at +-x)."""
 
-__all__ = ["Skeleton", "SKELETONS", "BODY25", "COCO17", "SHELF14", "SHELF15", "SKEL19", "H36M17", "SMPL24"]
+FLEX20_DUPLICATE_OF: dict[str, str] = {"spine_base": "mid_hip", "l_thorax": "thorax", "r_thorax": "thorax"}
+"""FLEX20 duplicate joint -> the joint it coincides with in every pose."""
+
+FLEX20_BONES: tuple[str, ...] = (
+    "pelvis_hip", "thigh", "shin", "pelvis_spine", "spine_thorax", "thorax_neck", "neck_head",
+    "thorax_shoulder", "upper_arm", "forearm",
+)
+"""FLEX's symmetric skeleton: the 10 bone lengths its E_S predicts (official order), each shared by the left
+and right bone and by the duplicates' copies."""
+
+FLEX20_BONE_OF_JOINT: tuple[int, ...] = (-1, 0, 1, 2, 0, 1, 2, -1, 3, 4, 5, 6, 4, 7, 8, 9, 4, 7, 8, 9)
+"""For each FLEX20 joint, the index in :data:`FLEX20_BONES` of the length of its offset from its parent;
+-1 for the root and ``spine_base`` (zero offset). Mirrored joints share a bone, so any 10 lengths give a
+left/right-symmetric skeleton."""
+
+FLEX20_END_EFFECTORS: tuple[int, ...] = (3, 6, 11, 15, 19)
+"""Joints without children (ankles, head, wrists): their rotation moves nothing, so FLEX predicts none."""
+
+FLEX20_ROTATING: tuple[int, ...] = tuple(
+    j for j in range(1, FLEX20.num_joints) if j not in FLEX20_END_EFFECTORS)
+"""The 14 non-root joints whose local rotations FLEX predicts (shared by all views), in index order."""
+
+_LEFT, _UP = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+_RIGHT, _DOWN, _ZERO = (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 0.0)
+FLEX20_REST_DIRECTIONS: dict[str, tuple[tuple[float, float, float], ...]] = {
+    "totem": (_ZERO, _RIGHT, _DOWN, _DOWN, _LEFT, _DOWN, _DOWN, _ZERO, _UP, _UP, _UP, _UP,
+              _UP, _UP, _UP, _UP, _UP, _UP, _UP, _UP),
+    "tpose": (_ZERO, _RIGHT, _DOWN, _DOWN, _LEFT, _DOWN, _DOWN, _ZERO, _UP, _UP, _UP, _UP,
+              _UP, _LEFT, _LEFT, _LEFT, _UP, _RIGHT, _RIGHT, _RIGHT),
+}
+"""Unit direction of each FLEX20 joint's rest offset from its parent, in the parent's frame, for the official
+code's two rest poses; the offset is this direction times the joint's bone length. Body frame: x = the
+person's left, y = up, z = forward (right-handed). ``"totem"`` (the released model's) points every upper-body
+bone, arms included, up; ``"tpose"`` points the shoulders and arms sideways. Zero for the root and
+``spine_base``."""
+
+SKELETONS: dict[str, Skeleton] = {
+    s.name: s for s in (BODY25, COCO17, SHELF14, SHELF15, SKEL19, H36M17, SMPL24, FLEX20)}
+
+__all__ = [
+    "Skeleton", "SKELETONS", "BODY25", "COCO17", "SHELF14", "SHELF15", "SKEL19", "H36M17", "SMPL24", "FLEX20",
+    "FLEX20_DUPLICATE_OF", "FLEX20_BONES", "FLEX20_BONE_OF_JOINT", "FLEX20_END_EFFECTORS", "FLEX20_ROTATING",
+    "FLEX20_REST_DIRECTIONS",
+]

@@ -23,7 +23,8 @@ ALL = list(SKELETONS.values())
 
 def test_registry_and_counts():
     assert {name: s.num_joints for name, s in SKELETONS.items()} == {
-        "BODY25": 25, "COCO17": 17, "SHELF14": 14, "SHELF15": 15, "SKEL19": 19, "H36M17": 17, "SMPL24": 24}
+        "BODY25": 25, "COCO17": 17, "SHELF14": 14, "SHELF15": 15, "SKEL19": 19, "H36M17": 17, "SMPL24": 24,
+        "FLEX20": 20}
     assert all(SKELETONS[s.name] is s for s in ALL)
 
 
