@@ -10,10 +10,12 @@ with unit weights give exactly what ``cv2.triangulatePoints`` gives.
 Two kernels solve the same problem:
 
 * ``"closed_form"`` (default): ``v`` is the eigenvector of ``M = A^T A`` with the smallest eigenvalue.
-  ``adj(M) = sum_i (prod_{j != i} lambda_j) v_i v_i^T`` is nearly rank one along that eigenvector, so
-  its column with the largest diagonal entry approximates it, and products with ``adj(M)`` (inverse
-  iteration without a solve) polish it. Element-wise arithmetic only: no LAPACK call, no tiny matrix
-  product, so ``vmap`` over millions of points stays vectorised, and it is differentiable.
+  Laguerre's method on the characteristic polynomial gives that eigenvalue ``mu``; then
+  ``adj(M - mu I) = sum_i (prod_{j != i} (lambda_j - mu)) v_i v_i^T`` is nearly rank one along the
+  eigenvector, so its column with the largest diagonal entry approximates it, and a product with the
+  adjugate (inverse iteration without a solve) polishes it. Element-wise arithmetic only: no LAPACK
+  call, no tiny matrix product, so ``vmap`` over millions of points stays vectorised, and it is
+  differentiable.
 * ``"svd"``: the last right-singular vector of ``A`` from ``jnp.linalg.svd`` (slow on CPU: a LAPACK
   call per point), kept as the reference.
 
