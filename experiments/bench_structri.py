@@ -19,6 +19,7 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
+from experiments.bench_geometry import interleaved_times  # noqa: E402
 from geometry import H36M17  # noqa: E402
 from structri import (constrained_reference, lem_triangulation, numpy_lem_triangulation,  # noqa: E402
                       numpy_structural_triangulation, structural_triangulation)
@@ -61,22 +62,12 @@ def make_problem(cfg: Config):
 
 
 def _compare(name, jax_fn, numpy_fn, points, cfg):
-    """Best of ``cfg.repeats`` rounds, each timing both contenders in turn (shared machines drift)."""
-    t = time.perf_counter()
-    out = jax.block_until_ready(jax_fn(points))
-    compile_s = time.perf_counter() - t
     few = points[:cfg.numpy_frames]
-    jax_s = numpy_s = np.inf
-    for _ in range(cfg.repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(jax_fn(points))
-        jax_s = min(jax_s, time.perf_counter() - t)
-        t = time.perf_counter()
-        ref = np.stack([numpy_fn(p) for p in few])
-        numpy_s = min(numpy_s, time.perf_counter() - t)
-    ours = np.asarray(out)[:cfg.numpy_frames]
-    jax_fps, numpy_fps = cfg.frames / jax_s, cfg.numpy_frames / numpy_s
-    return {f"{name}_jax_frames_per_s": jax_fps, f"{name}_compile_s": compile_s,
+    calls = {"jax": lambda: jax_fn(points), "numpy": lambda: np.stack([numpy_fn(p) for p in few])}
+    seconds, first = interleaved_times(calls, cfg.repeats)
+    ours, ref = np.asarray(calls["jax"]())[:cfg.numpy_frames], calls["numpy"]()
+    jax_fps, numpy_fps = cfg.frames / seconds["jax"], cfg.numpy_frames / seconds["numpy"]
+    return {f"{name}_jax_frames_per_s": jax_fps, f"{name}_compile_s": first["jax"] - seconds["jax"],
             f"{name}_numpy_frames_per_s": numpy_fps, f"{name}_speedup_vs_numpy": jax_fps / numpy_fps,
             f"{name}_max_rel_diff": float(np.max(np.abs(ours - ref)) / np.max(np.abs(ref)))}
 

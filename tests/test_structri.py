@@ -263,3 +263,10 @@ def test_frames_last_elimination_matches_numpy(size):
     rhs = rng.normal(size=(frames, size, 2))
     ours = _solve_symmetric(jnp.moveaxis(jnp.asarray(system), 0, -1), jnp.moveaxis(jnp.asarray(rhs), 0, -1))
     np.testing.assert_allclose(np.moveaxis(np.asarray(ours), -1, 0), np.linalg.solve(system, rhs), rtol=1e-10)
+
+
+def test_benchmark_smoke():
+    from experiments import bench_structri
+    out = bench_structri.run(bench_structri.Config(frames=64, numpy_frames=4, reference_frames=1, repeats=1))
+    assert out["st_max_rel_diff"] < 1e-6 and out["lem_max_rel_diff"] < 1e-6
+    assert out["st_speedup_vs_numpy"] > 0 and out["reference_s_per_frame"] > 0
