@@ -145,39 +145,13 @@ class Batch(NamedTuple):
     """Every view's camera at every frame (leaves ``(batch, views, frames, ...)``), for evaluation only."""
 
 
-def _normalise(v: Float[Array, "*b 3"]) -> Float[Array, "*b 3"]:
-    norm = jnp.linalg.norm(v, axis=-1, keepdims=True)
-    return v / jnp.maximum(norm, 1e-12)
-
-
-def _swing(a: Float[Array, "*#b 3"], b: Float[Array, "*#b 3"]) -> Float[Array, "*#b 3 3"]:
-    """The smallest rotation taking unit vector ``a`` to unit vector ``b`` (half a turn about an axis normal to
-    ``a`` when they are opposite)."""
-    a, b = jnp.broadcast_arrays(a, b)
-    cross = jnp.cross(a, b)
-    sine, cosine = jnp.linalg.norm(cross, axis=-1), jnp.sum(a * b, axis=-1)
-    opposite = (sine < 1e-9) & (cosine < 0)
-    fallback = jnp.cross(a, jnp.where(jnp.abs(a[..., :1]) < 0.9, jnp.eye(3)[0], jnp.eye(3)[1]))
-    axis = jnp.where(opposite[..., None], _normalise(fallback), cross / jnp.maximum(sine, 1e-30)[..., None])
-    angle = jnp.arctan2(sine, cosine)
-    # sin(angle) -> angle near 0 makes cross / sine * angle ~ cross: no 0 / 0.
-    rotvec = jnp.where((sine < 1e-9)[..., None] & ~opposite[..., None], cross, axis * angle[..., None])
-    return geometry.axis_angle_to_matrix(rotvec)
-
-
 def _frame(x: Float[Array, "*b 3"], y: Float[Array, "*b 3"], exact: Literal["x", "y"]) -> Float[Array, "*b 3 3"]:
     """The rotation with x column along ``x`` and y column along ``y``: the ``exact`` one normalised, the other
-    orthogonalised against it."""
-    def orthogonal(v: Array, unit: Array) -> Array:
-        return _normalise(v - jnp.sum(v * unit, axis=-1, keepdims=True) * unit)
-
+    orthogonalised against it (Gram-Schmidt of :func:`geometry.rotation_6d_to_matrix`)."""
     if exact == "x":
-        x = _normalise(x)
-        y = orthogonal(y, x)
-    else:
-        y = _normalise(y)
-        x = orthogonal(x, y)
-    return jnp.stack([x, y, jnp.cross(x, y)], axis=-1)
+        return geometry.rotation_6d_to_matrix(jnp.concatenate([x, y], axis=-1))
+    columns = geometry.rotation_6d_to_matrix(jnp.concatenate([y, x], axis=-1))  # (y, x', y cross x')
+    return jnp.stack([columns[..., 1], columns[..., 0], -columns[..., 2]], axis=-1)
 
 
 def _matvec_t(m: Float[Array, "*b 3 3"], v: Float[Array, "*b 3"]) -> Float[Array, "*b 3"]:
@@ -216,8 +190,9 @@ def local_rotations(
             local[joint] = jnp.swapaxes(parent, -1, -2) @ globals_[joint]
         elif joint in FLEX20_ROTATING:
             child = children[joint]
-            target = _normalise(_matvec_t(parent, joints[..., child, :] - joints[..., joint, :]))
-            local[joint] = _swing(reference[child], target) @ _swing(rest[child], reference[child])
+            target = _matvec_t(parent, joints[..., child, :] - joints[..., joint, :])
+            local[joint] = (geometry.rotation_between(reference[child], target)
+                            @ geometry.rotation_between(rest[child], reference[child]))
             globals_[joint] = parent @ local[joint]
         else:
             local[joint] = globals_[joint] = identity

@@ -37,6 +37,7 @@ __all__ = [
     "euler_to_matrix",
     "matrix_to_euler",
     "relative_rotation",
+    "rotation_between",
     "rotation_angle",
     "geodesic_distance",
 ]
@@ -348,6 +349,28 @@ def relative_rotation(rotation_a: Float[ArrayLike, "*#batch 3 3"], rotation_b: F
     _check_trailing(a, (3, 3), "rotation_a")
     _check_trailing(b, (3, 3), "rotation_b")
     return _matmul(_transpose(a), b)
+
+
+def rotation_between(a: Float[ArrayLike, "*#batch 3"], b: Float[ArrayLike, "*#batch 3"]) -> Float[Array, "*#batch 3 3"]:
+    """The smallest rotation taking the direction of ``a`` to that of ``b`` (no twist about either).
+
+    Opposite directions get half a turn about an axis normal to ``a``."""
+    a, b = _as_float(a), _as_float(b)
+    _check_trailing(a, (3,), "a")
+    _check_trailing(b, (3,), "b")
+    a, b = jnp.broadcast_arrays(a / jnp.maximum(_safe_norm(a), 1e-30)[..., None],
+                                b / jnp.maximum(_safe_norm(b), 1e-30)[..., None])
+    cross = jnp.cross(a, b)
+    sine, cosine = jnp.linalg.norm(cross, axis=-1), jnp.sum(a * b, axis=-1)
+    opposite = (sine < 1e-9) & (cosine < 0)
+    unit_x, unit_y = jnp.eye(3, dtype=a.dtype)[:2]
+    fallback = jnp.cross(a, jnp.where(jnp.abs(a[..., :1]) < 0.9, unit_x, unit_y))
+    fallback = fallback / jnp.maximum(_safe_norm(fallback), 1e-12)[..., None]
+    axis = jnp.where(opposite[..., None], fallback, cross / jnp.maximum(sine, 1e-30)[..., None])
+    angle = jnp.arctan2(sine, cosine)
+    # sin(angle) ~ angle near 0, so cross ~ axis * angle there: no 0 / 0.
+    rotvec = jnp.where((sine < 1e-9)[..., None] & ~opposite[..., None], cross, axis * angle[..., None])
+    return axis_angle_to_matrix(rotvec)
 
 
 def rotation_angle(matrix: Float[ArrayLike, "*batch 3 3"]) -> Float[Array, "*batch"]:

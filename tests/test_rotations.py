@@ -218,6 +218,30 @@ def test_any_6d_vector_maps_to_a_rotation_keeping_its_first_column_direction(rot
     assert np.dot(matrix[:, 1], rot6d[3:]) > 0  # second column in the half-plane of the second vector
 
 
+vector_pair_strategy = st.lists(st.floats(-10, 10), min_size=6, max_size=6).map(np.array).filter(
+    lambda v: np.linalg.norm(v[:3]) > 1e-3 and np.linalg.norm(v[3:]) > 1e-3)
+
+
+@PROPERTY
+@given(vector_pair_strategy)
+def test_rotation_between_takes_a_to_b_without_twist(v):
+    a, b = v[:3], v[3:]
+    matrix = np.asarray(jg.rotation_between(a, b))
+    _assert_rotation(matrix)
+    assert_allclose(matrix @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
+    # No twist: the rotation angle is the angle between the vectors.
+    angle = np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)
+    assert_allclose(float(jg.rotation_angle(matrix)), angle, atol=1e-7)
+
+
+def test_rotation_between_opposite_and_equal_directions():
+    a = np.array([0.3, -1.2, 0.5])
+    half_turn = np.asarray(jg.rotation_between(a, -2 * a))
+    _assert_rotation(half_turn)
+    assert_allclose(half_turn @ a, -a, atol=1e-12)
+    assert_allclose(np.asarray(jg.rotation_between(a, 3 * a)), np.eye(3), atol=1e-14)
+
+
 def test_6d_is_the_first_two_columns():
     matrix = _random_matrices(np.random.default_rng(8), 1)[0]
     assert_allclose(np.asarray(jg.matrix_to_rotation_6d(matrix)), np.concatenate([matrix[:, 0], matrix[:, 1]]))
