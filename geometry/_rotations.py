@@ -354,7 +354,7 @@ def relative_rotation(rotation_a: Float[ArrayLike, "*#batch 3 3"], rotation_b: F
 def rotation_between(a: Float[ArrayLike, "*#batch 3"], b: Float[ArrayLike, "*#batch 3"]) -> Float[Array, "*#batch 3 3"]:
     """The smallest rotation taking the direction of ``a`` to that of ``b`` (no twist about either).
 
-    Opposite directions get half a turn about an axis normal to ``a``."""
+    Opposite directions get half a turn about an axis normal to ``a``; a zero vector gives the identity."""
     a, b = _as_float(a), _as_float(b)
     _check_trailing(a, (3,), "a")
     _check_trailing(b, (3,), "b")
