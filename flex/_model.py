@@ -51,6 +51,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Float
 
 import geometry
+import training
 from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, H36M17
 
 from ._normalise import normalise_2d
@@ -233,13 +234,6 @@ def _pool_time(x: Float[Array, "batch time *rest"], length: int) -> Float[Array,
     return jnp.einsum("st,bt...->bs...", matrix, x)
 
 
-def _dropout(x: Float[Array, "*shape"], rate: float, key: jax.Array | None) -> Float[Array, "*shape"]:
-    if key is None or rate == 0.0:
-        return x
-    keep = jax.random.bernoulli(key, 1.0 - rate, x.shape)
-    return jnp.where(keep, x / (1.0 - rate), 0.0)
-
-
 class Block(nnx.Module):
     """A linear map (1x1 expansion or a convolution) -> batch norm over the features -> leaky ReLU -> dropout."""
 
@@ -251,7 +245,7 @@ class Block(nnx.Module):
 
     def __call__(self, x: Float[Array, "*shape"], key: jax.Array | None) -> Float[Array, "*out"]:
         x = self.norm(self.layer(x), use_running_average=key is None)
-        return _dropout(jax.nn.leaky_relu(x, self.slope), self.rate, key)
+        return training.dropout(jax.nn.leaky_relu(x, self.slope), self.rate, key)
 
 
 class ViewAttention(nnx.Module):

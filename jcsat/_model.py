@@ -42,6 +42,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 import geometry
+import training
 from geometry import BODY25, SHELF15
 
 from ._otap import OTAP
@@ -199,13 +200,6 @@ class FourierEncoding(nnx.Module):
         return jnp.concatenate([jnp.cos(angle), jnp.sin(angle)], axis=-1)
 
 
-def _dropout(x: Float[Array, "*shape"], rate: float, key: jax.Array | None) -> Float[Array, "*shape"]:
-    if key is None or rate == 0.0:
-        return x
-    keep = jax.random.bernoulli(key, 1.0 - rate, x.shape)
-    return jnp.where(keep, x / (1.0 - rate), 0.0)
-
-
 class ViTBlock(nnx.Module):
     """Pre-LN Transformer block (supp. Sec. 2): ``x + MSA(LN(x))``, then ``x + MLP(LN(x))`` with GELU.
 
@@ -240,9 +234,9 @@ class ViTBlock(nnx.Module):
         self, x: Float[Array, "*batch n d"], mask: Bool[Array, "*batch n"], key: jax.Array | None = None
     ) -> Float[Array, "*batch n d"]:
         attention_key, mlp_key = (None, None) if key is None else jax.random.split(key)
-        x = x + _dropout(self.attention(self.attention_norm(x), mask), self.dropout, attention_key)
+        x = x + training.dropout(self.attention(self.attention_norm(x), mask), self.dropout, attention_key)
         hidden = jax.nn.gelu(self.mlp_in(self.mlp_norm(x)), approximate=False)
-        return x + _dropout(self.mlp_out(hidden), self.dropout, mlp_key)
+        return x + training.dropout(self.mlp_out(hidden), self.dropout, mlp_key)
 
 
 class ViT(nnx.Module):

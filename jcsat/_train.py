@@ -21,8 +21,6 @@ gives N devices.
 from __future__ import annotations
 
 import dataclasses
-import json
-import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -32,12 +30,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import orbax.checkpoint as ocp
-import tqdm
 from flax import nnx
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import NamedSharding
 
 import geometry
+import training
 from geometry import SHELF15
 
 from ._data import VALIDATION_CLIPS, Batch, DataConfig, WindowDataset, build_dataset, sample_batch, window_batch
@@ -178,15 +175,6 @@ def _eval_step(graphdef: nnx.GraphDef, state: TrainState, batch: Batch, weight: 
     }
 
 
-def _shardings(batch_size: int) -> tuple[NamedSharding, NamedSharding]:
-    devices = jax.local_devices()
-    if batch_size % len(devices):
-        raise ValueError(f"batch_size {batch_size} must be a multiple of the {len(devices)} local devices "
-                         "(data parallelism splits every batch evenly)")
-    mesh = Mesh(np.array(devices), ("data",))
-    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("data"))
-
-
 def _validate(eval_step, state, data: WindowDataset, config: TrainConfig, batch_sharding) -> dict[str, float]:
     """MPJPE (mm) and strict PCP (%) of the model over the valid frames of the first validation windows."""
     count = min(config.validation_windows, data.num_windows)
@@ -203,46 +191,9 @@ def _validate(eval_step, state, data: WindowDataset, config: TrainConfig, batch_
             "val_frames": int(sums["frames"])}
 
 
-def _to_jsonable(value: Any) -> Any:
-    return json.loads(json.dumps(value, default=lambda v: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else str(v)))
-
-
-def _truncate_log(path: Path, last_step: int) -> None:
-    """Drop log lines past the restored step (or all of a run killed before its first checkpoint):
-    the run writes them again, identically."""
-    if path.is_file():
-        lines = [line for line in path.read_text().splitlines() if json.loads(line)["step"] <= last_step]
-        path.write_text("".join(line + "\n" for line in lines))
-
-
-def _save_model(path: Path, model_config: JCSATConfig, params: Any, rest: Any) -> None:
-    path.mkdir(parents=True, exist_ok=True)
-    (path / "config.json").write_text(json.dumps(_to_jsonable(model_config), indent=2) + "\n")
-    leaves = jax.tree_util.tree_flatten_with_path(_storable(nnx.merge_state(params, rest)))[0]
-    np.savez(path / "state.npz", **{jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves})
-
-
-def _storable(state: Any) -> Any:
-    """The state without RNG keys and counters (they only seed training-time randomness)."""
-    return nnx.filter_state(state, nnx.Not(nnx.RngState))
-
-
 def load_model(path: str | Path) -> JCSAT:
     """The model written by :func:`train` to ``<workdir>/model``, with the trained parameters."""
-    path = Path(path)
-    missing = [name for name in ("config.json", "state.npz") if not (path / name).is_file()]
-    if missing:
-        raise FileNotFoundError(f"{path} is not a model folder written by jcsat.train: no {', '.join(missing)}")
-    fields = json.loads((path / "config.json").read_text())
-    model = JCSAT(JCSATConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}),
-                  rngs=nnx.Rngs(0))
-    state = nnx.state(model)
-    stored = _storable(state)
-    with np.load(path / "state.npz") as arrays:
-        leaves, treedef = jax.tree_util.tree_flatten_with_path(stored)
-        values = [jnp.asarray(arrays[jax.tree_util.keystr(k)], v.dtype) for k, v in leaves]
-    nnx.update(model, jax.tree_util.tree_unflatten(treedef, values))
-    return model
+    return training.load_model_state(path, lambda fields: JCSAT(JCSATConfig(**fields), rngs=nnx.Rngs(0)))
 
 
 def train(
@@ -259,13 +210,8 @@ def train(
     config); ``resume=False`` refuses a ``workdir`` that already has checkpoints. ``log`` receives
     every record written to ``log.jsonl``; ``progress`` shows a tqdm bar.
     """
+    replicated, batch_sharding = training.data_parallel_shardings(config.batch_size)
     workdir = Path(workdir).resolve()
-    workdir.mkdir(parents=True, exist_ok=True)
-    config_json = json.dumps(_to_jsonable(dataclasses.asdict(config)), indent=2, sort_keys=True) + "\n"
-    config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
-    if resume and config_path.is_file() and config_path.read_text() != config_json:
-        raise ValueError(f"{config_path} differs from the config passed: resume only the same run")
-    replicated, batch_sharding = _shardings(config.batch_size)
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     train_data = jax.device_put(build_dataset(config.data, cache_dir), replicated)
     validation_data = jax.device_put(build_dataset(config.validation_data, cache_dir), replicated)
@@ -275,56 +221,19 @@ def train(
     model_config = CONFIGS[config.model] if isinstance(config.model, str) else config.model
     model = JCSAT(model_config, rngs=nnx.Rngs(config.seed))
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
-    state = init_state(config, params, rest)
 
-    options = ocp.CheckpointManagerOptions(max_to_keep=2)
-    with ocp.CheckpointManager(workdir / "checkpoints", options=options) as manager:
-        latest = manager.latest_step()
-        if latest is not None and not resume:
-            raise ValueError(f"{workdir} already has checkpoints (step {latest}); pass resume=True or a new workdir")
-        if latest is not None:
-            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
-            state = TrainState(**manager.restore(latest, args=ocp.args.StandardRestore(abstract._asdict())))
-        _truncate_log(log_path, 0 if latest is None else latest)
-        config_path.write_text(config_json)
-        state = jax.device_put(state, replicated)
+    def step(state: TrainState, i: int) -> tuple[TrainState, dict[str, jax.Array]]:
+        sample_key, mask_key = jax.random.split(jax.random.fold_in(state.key, i))
+        batch = _sample(train_data, sample_key, config.batch_size, config.data.window)
+        return train_step(graphdef, config, replicated, state, jax.device_put(batch, batch_sharding), mask_key)
 
-        eval_fn = partial(_eval_step, graphdef)
-        schedule = learning_rate_schedule(config)
-
-        first = int(state.step)
-        timer_start, timer_steps = None, 0
-        bar = tqdm.tqdm(total=config.steps, initial=first, disable=not progress, desc="jcsat train")
-        with log_path.open("a") as log_file:
-            for step in range(first, config.steps):
-                sample_key, mask_key = jax.random.split(jax.random.fold_in(state.key, step))
-                batch = _sample(train_data, sample_key, config.batch_size, config.data.window)
-                state, metrics = train_step(graphdef, config, replicated, state, jax.device_put(batch, batch_sharding),
-                                            mask_key)
-                done = step + 1
-                timer_steps += 1
-                record: dict[str, Any] = {}
-                if done % config.log_interval == 0 or done == config.steps:
-                    record.update({k: float(v) for k, v in metrics.items()})
-                    record["lr"] = float(schedule(step))
-                    if timer_start is not None:
-                        record["seconds_per_step"] = (time.perf_counter() - timer_start) / timer_steps
-                    bar.set_postfix(loss=f"{record['loss']:.4g}")
-                if done % config.validation_interval == 0 or done == config.steps:
-                    record.update(_validate(eval_fn, state, validation_data, config, batch_sharding))
-                if done % config.checkpoint_interval == 0 or done == config.steps:
-                    manager.save(done, args=ocp.args.StandardSave(state._asdict()))
-                if record:
-                    record = {"step": done, **record}
-                    log_file.write(json.dumps(record) + "\n")
-                    log_file.flush()
-                    log(record)
-                if record or timer_start is None:
-                    # Timings cover training steps only: not the first (compiling) step, validation or saving.
-                    jax.block_until_ready(state)
-                    timer_start, timer_steps = time.perf_counter(), 0
-                bar.update(1)
-        bar.close()
-        manager.wait_until_finished()
-    _save_model(workdir / "model", model_config, state.params, state.rest)
+    eval_fn = partial(_eval_step, graphdef)
+    state = training.run_training(
+        workdir, config, init_state(config, params, rest), step, steps=config.steps, resume=resume,
+        log_interval=config.log_interval, checkpoint_interval=config.checkpoint_interval,
+        validation_interval=config.validation_interval,
+        validate=lambda state: _validate(eval_fn, state, validation_data, config, batch_sharding),
+        replicated=replicated, learning_rate=learning_rate_schedule(config), log=log, progress=progress,
+        description="jcsat train")
+    training.save_model(workdir / "model", model_config, nnx.merge_state(state.params, state.rest))
     return nnx.merge(graphdef, state.params, state.rest)

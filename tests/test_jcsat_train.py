@@ -24,7 +24,7 @@ from jcsat import (
     pcp_hinge_loss, project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step,
     window_batch,
 )
-from jcsat import _train
+import training
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -210,7 +210,7 @@ def _fixed_batch_steps(config: TrainConfig, dataset, num_steps: int):
     """``num_steps`` train steps on one fixed batch of ``config.batch_size`` windows (all local devices)."""
     model = JCSAT(config.model, rngs=nnx.Rngs(config.seed))
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
-    replicated, sharded = _train._shardings(config.batch_size)
+    replicated, sharded = training.data_parallel_shardings(config.batch_size)
     state = jax.device_put(init_state(config, params, rest), replicated)
     batch = jax.device_put(sample_batch(dataset, jax.random.key(1), config.batch_size, config.data.window), sharded)
     losses = []

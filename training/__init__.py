@@ -1,0 +1,20 @@
+"""Training infrastructure shared by every model of the project (JCSAT, FLEX, the dynamics models).
+
+- :func:`run_training`: the resumable loop: orbax checkpoints written atomically every interval (a killed
+  run loses at most one interval), ``--resume`` that continues bit-identically, JSON-lines logs, a tqdm bar,
+  validation at fixed steps. The model-specific step and validation are functions passed in.
+- :func:`data_parallel_shardings`: the one-axis ``"data"`` mesh over the local devices (batches sharded
+  along their first axis, parameters and optimiser state replicated).
+- :func:`save_model` / :func:`load_model_state`: a trained NNX model as ``config.json`` + ``state.npz``, the
+  small format the project ships its models in.
+- :func:`dropout`: inverted dropout driven by an explicit key (``None``: inference).
+"""
+
+from ._layers import dropout as dropout
+from ._loop import data_parallel_shardings as data_parallel_shardings
+from ._loop import run_training as run_training
+from ._loop import to_jsonable as to_jsonable
+from ._store import load_model_state as load_model_state
+from ._store import save_model as save_model
+
+__all__ = ["data_parallel_shardings", "dropout", "load_model_state", "run_training", "save_model", "to_jsonable"]

@@ -1,0 +1,138 @@
+"""The resumable training loop and the data-parallel shardings (see the package docstring)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+import tqdm
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+__all__ = ["data_parallel_shardings", "run_training", "to_jsonable"]
+
+S = TypeVar("S")
+"""A training state: a NamedTuple of arrays with a ``step`` field."""
+
+
+def to_jsonable(value: Any) -> Any:
+    """Dataclasses (nested) as dicts, tuples as lists, anything else JSON cannot hold as its ``str``."""
+    return json.loads(json.dumps(value, default=lambda v: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else str(v)))
+
+
+def data_parallel_shardings(batch_size: int) -> tuple[NamedSharding, NamedSharding]:
+    """``(replicated, batch_sharded)`` on a one-axis ``"data"`` mesh over the local devices.
+
+    On CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before jax starts) gives N devices."""
+    devices = jax.local_devices()
+    if batch_size % len(devices):
+        raise ValueError(f"batch_size {batch_size} must be a multiple of the {len(devices)} local devices "
+                         "(data parallelism splits every batch evenly)")
+    mesh = Mesh(np.array(devices), ("data",))
+    return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("data"))
+
+
+def _truncate_log(path: Path, last_step: int) -> None:
+    """Drop log lines past the restored step (or all of a run killed before its first checkpoint):
+    the run writes them again, identically."""
+    if path.is_file():
+        lines = [line for line in path.read_text().splitlines() if json.loads(line)["step"] <= last_step]
+        path.write_text("".join(line + "\n" for line in lines))
+
+
+def run_training(
+    workdir: str | Path,
+    config: Any,
+    state: S,
+    step: Callable[[S, int], tuple[S, Mapping[str, jax.Array]]],
+    *,
+    steps: int,
+    resume: bool,
+    log_interval: int,
+    checkpoint_interval: int,
+    validation_interval: int,
+    validate: Callable[[S], Mapping[str, float]],
+    replicated: NamedSharding,
+    learning_rate: Callable[[int], Any] | None = None,
+    log: Callable[[dict], None] = lambda record: None,
+    progress: bool = True,
+    description: str = "train",
+) -> S:
+    """Run ``state = step(state, i)`` for ``i`` from the state's step count to ``steps`` in ``workdir``; return it.
+
+    ``state`` is the step-0 state, a NamedTuple of arrays with a ``step`` field (the number of steps taken):
+    exactly what a checkpoint holds. ``step`` must be a deterministic function of ``(state, i)`` (draw
+    step i's randomness from ``fold_in(key, i)``), so that a resumed run repeats an uninterrupted one bit for
+    bit. It returns the new state and the step's metrics.
+
+    Files in ``workdir``: ``config.json`` (``config``, a dataclass); ``log.jsonl``, one JSON object per
+    logged step (``step``, the metrics every ``log_interval`` steps with the ``learning_rate(i)`` as ``lr``
+    and ``seconds_per_step``, ``validate(state)`` every ``validation_interval`` steps, both at the last);
+    ``checkpoints/<step>/`` (orbax, atomic, the last two kept) every ``checkpoint_interval`` steps and at the
+    end. ``resume=True`` continues from the latest checkpoint (refusing a different config); ``resume=False``
+    refuses a ``workdir`` that already has checkpoints. ``log`` receives every record written; ``progress``
+    shows a tqdm bar. The state is kept on ``replicated`` devices.
+    """
+    for name, value in (("steps", steps), ("log_interval", log_interval), ("checkpoint_interval", checkpoint_interval),
+                        ("validation_interval", validation_interval)):
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
+    workdir = Path(workdir).resolve()
+    workdir.mkdir(parents=True, exist_ok=True)
+    config_json = json.dumps(to_jsonable(dataclasses.asdict(config)), indent=2, sort_keys=True) + "\n"
+    config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
+    if resume and config_path.is_file() and config_path.read_text() != config_json:
+        raise ValueError(f"{config_path} differs from the config passed: resume only the same run")
+
+    options = ocp.CheckpointManagerOptions(max_to_keep=2)
+    with ocp.CheckpointManager(workdir / "checkpoints", options=options) as manager:
+        latest = manager.latest_step()
+        if latest is not None and not resume:
+            raise ValueError(f"{workdir} already has checkpoints (step {latest}); pass resume=True or a new workdir")
+        if latest is not None:
+            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
+            state = type(state)(**manager.restore(latest, args=ocp.args.StandardRestore(abstract._asdict())))
+        _truncate_log(log_path, 0 if latest is None else latest)
+        config_path.write_text(config_json)
+        state = jax.device_put(state, replicated)
+
+        first = int(state.step)
+        timer_start, timer_steps = None, 0
+        bar = tqdm.tqdm(total=steps, initial=first, disable=not progress, desc=description)
+        with log_path.open("a") as log_file:
+            for i in range(first, steps):
+                state, metrics = step(state, i)
+                done = i + 1
+                timer_steps += 1
+                record: dict[str, Any] = {}
+                if done % log_interval == 0 or done == steps:
+                    record.update({k: float(v) for k, v in metrics.items()})
+                    if learning_rate is not None:
+                        record["lr"] = float(learning_rate(i))
+                    if timer_start is not None:
+                        record["seconds_per_step"] = (time.perf_counter() - timer_start) / timer_steps
+                    if "loss" in record:
+                        bar.set_postfix(loss=f"{record['loss']:.4g}")
+                if done % validation_interval == 0 or done == steps:
+                    record.update(validate(state))
+                if done % checkpoint_interval == 0 or done == steps:
+                    manager.save(done, args=ocp.args.StandardSave(state._asdict()))
+                if record:
+                    record = {"step": done, **record}
+                    log_file.write(json.dumps(record) + "\n")
+                    log_file.flush()
+                    log(record)
+                if record or timer_start is None:
+                    # Timings cover training steps only: not the first (compiling) step, validation or saving.
+                    jax.block_until_ready(state)
+                    timer_start, timer_steps = time.perf_counter(), 0
+                bar.update(1)
+        bar.close()
+        manager.wait_until_finished()
+    return state
