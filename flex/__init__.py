@@ -2,10 +2,15 @@
 
 The network (fusion layers F_Q / F_S with multi-view convolution and cross-view attention, encoders E_Q / E_S,
 forward kinematics of the :data:`geometry.FLEX20` skeleton, per-joint rotation discriminator), its losses
-(Eq. 3-9), the calibration-free input normalisation, and training samples from 3D motion seen by static or
-moving virtual cameras. Each private module defines ``__all__``; the public names are re-exported here.
+(Eq. 3-9), the calibration-free input normalisation, training samples from 3D motion seen by static or
+moving virtual cameras, the BVH export of a prediction, and the experiment's camera-dependent triangulation
+baselines and metrics. Each private module defines ``__all__``; the public names are re-exported here.
 """
 
+from ._baselines import baseline_cameras as baseline_cameras
+from ._baselines import motion_metrics as motion_metrics
+from ._baselines import triangulation_baseline as triangulation_baseline
+from ._baselines import MotionMetrics as MotionMetrics
 from ._data import local_rotations as local_rotations
 from ._data import make_batch as make_batch
 from ._data import make_sample as make_sample
@@ -13,6 +18,7 @@ from ._data import root_frame as root_frame
 from ._data import symmetric_bone_lengths as symmetric_bone_lengths
 from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
+from ._export import to_bvh as to_bvh
 from ._losses import adversarial_loss as adversarial_loss
 from ._losses import contact_loss as contact_loss
 from ._losses import contact_velocity_loss as contact_velocity_loss
@@ -33,11 +39,20 @@ from ._model import RotationDiscriminator as RotationDiscriminator
 from ._normalise import normalise_2d as normalise_2d
 from ._normalise import normalise_view as normalise_view
 from ._normalise import NormalisedInput as NormalisedInput
+from ._train import build_pool as build_pool
+from ._train import load_flex as load_flex
+from ._train import train as train
+from ._train import train_step as train_step
+from ._train import TEST_CLIPS as TEST_CLIPS
+from ._train import TRAIN_CLIPS as TRAIN_CLIPS
+from ._train import TrainConfig as TrainConfig
+from ._train import TrainState as TrainState
+from ._train import VALIDATION_CLIPS as VALIDATION_CLIPS
 
 __all__ = [
-    "adversarial_loss", "Batch", "CONFIGS", "contact_loss", "contact_velocity_loss", "DataConfig", "Discriminator",
-    "discriminator_loss", "Flex", "flex_forward_kinematics", "FlexConfig", "FlexOutputs", "generator_loss",
-    "local_rotations", "LossWeights", "make_batch", "make_sample", "normalise_2d", "normalise_view",
-    "NormalisedInput", "parameter_count", "position_loss", "root_frame", "root_loss", "RotationDiscriminator",
-    "skeleton_loss", "symmetric_bone_lengths",
+    "adversarial_loss", "baseline_cameras", "Batch", "CONFIGS", "contact_loss", "contact_velocity_loss", "DataConfig",
+    "Discriminator", "discriminator_loss", "Flex", "flex_forward_kinematics", "FlexConfig", "FlexOutputs",
+    "generator_loss", "local_rotations", "LossWeights", "make_batch", "make_sample", "motion_metrics", "MotionMetrics",
+    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "position_loss", "root_frame", "root_loss",
+    "RotationDiscriminator", "skeleton_loss", "symmetric_bone_lengths", "to_bvh", "triangulation_baseline",
 ]

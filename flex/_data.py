@@ -12,7 +12,8 @@ A sample (:func:`make_sample`) takes ``frames`` consecutive frames of one person
   between cameras change during the sequence. Ring radii grow with the extent of the person's path so that no
   camera comes closer than ``distance[0]``.
 - **2D joints**: the detector model of :mod:`mocap` (:func:`mocap.detect_with_events`: noise scaled by the
-  apparent size, occlusion, left/right swaps, misses, confidences) runs on the person's BODY25 joints, each view
+  apparent size, occlusion, left/right swaps, misses, confidences) runs on the BODY25 joints of every person of
+  the clip (the two-person clips' partner occludes the person: mutual occlusion), each view
   in its own camera frame (an identity-extrinsics camera, so moving cameras cost nothing extra). Each
   :data:`geometry.H36M17` joint then gets the detector's error of its BODY25 counterpart (the mean error and mean
   confidence of several for the spine, neck and head, which BODY25 lacks), added to its exact projection;
@@ -274,20 +275,24 @@ def _cameras(rng: np.random.Generator, config: DataConfig, root: np.ndarray, fps
                   np.zeros((k, frames, 5)), np.broadcast_to(np.asarray(config.image_size), (k, frames, 2)))
 
 
-def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray, h36m: np.ndarray
+def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray, person: int, h36m: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per view: detected H36M17 pixels (views, T, 17, 2) and confidences (views, T, 17), and the exact
-    projections (views, T, 17, 2), from the detector model run in each view's camera frame."""
+    """Per view: ``person``'s detected H36M17 pixels (views, T, 17, 2) and confidences (views, T, 17), and the
+    exact projections (views, T, 17, 2), from the detector model run in each view's camera frame on all the
+    clip's people ``body25`` (T, people, 25, 3), so that the others occlude the person."""
     points, confidences, exact = [], [], []
     for view, view_key in enumerate(jax.random.split(key, config.views)):
         R, t = cameras.R[view], cameras.t[view]  # (T, 3, 3), (T, 3)
-        in_camera = lambda x: np.einsum("tij,tnj->tni", R, x) + t[:, None, :]  # noqa: E731
+
+        def in_camera(x: np.ndarray) -> np.ndarray:  # world (T, ..., 3) -> this view's camera frame
+            return np.einsum("tij,t...j->t...i", R, x) + np.expand_dims(t, tuple(range(1, x.ndim - 1)))
+
         rig = Camera.create(cameras.K[view, :1], np.eye(3)[None], np.zeros((1, 3)),
                             image_size=cameras.image_size[view, :1])
-        frames, events = mocap.detect_with_events(view_key, rig, in_camera(body25)[:, None], config.detector)
-        found = mocap.oracle_keypoints(mocap.pad_detections(frames), 1)[:, 0, 0]  # (T, 25, 3)
+        frames, events = mocap.detect_with_events(view_key, rig, in_camera(body25), config.detector)
+        found = mocap.oracle_keypoints(mocap.pad_detections(frames), body25.shape[1])[:, 0, person]  # (T, 25, 3)
         reported = found[..., 2] > 0
-        error = np.where(reported[..., None], found[..., :2] - events.geometry.pixels[:, 0, 0], 0.0)
+        error = np.where(reported[..., None], found[..., :2] - events.geometry.pixels[:, 0, person], 0.0)
         weight = _PROXIES[None] * reported[:, None, :]  # (T, 17, 25)
         count = weight.sum(-1)
         projected = np.asarray(geometry.project(rig.select(0), in_camera(h36m)))
@@ -318,13 +323,13 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
     clip = _clip(config.clip_names[int(rng.integers(len(config.clip_names)))])
     person = int(rng.integers(clip.num_people))
     window = _window(rng, clip.num_frames, config.frames)
-    h36m, body25 = clip.h36m17[person].copy(), clip.body25[person][window]
+    h36m, body25 = clip.h36m17[person].copy(), np.moveaxis(clip.body25[:, window], 0, 1)  # (T, people, 25, 3)
     h36m[:, _ROOT] = 0.5 * (h36m[:, H36M17.index("l_hip")] + h36m[:, H36M17.index("r_hip")])
     lowest = h36m[:, _FEET, 2].min()
     h36m = h36m[window]
 
     cameras = _cameras(rng, config, h36m[:, _ROOT], clip.fps)
-    points, confidences, exact = _detect(detector_key, config, cameras, body25, h36m)
+    points, confidences, exact = _detect(detector_key, config, cameras, body25, person, h36m)
     camera_joints = np.einsum("ktij,tnj->ktni", cameras.R, h36m) + cameras.t[:, :, None, :]  # (K, T, 17, 3)
     normalised = normalise_2d(points, confidences, _ROOT)
     focal = 0.5 * (cameras.K[:, 0, 0, 0] + cameras.K[:, 0, 1, 1])

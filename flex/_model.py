@@ -96,6 +96,10 @@ class FlexConfig:
     """Decay of the running averages (PyTorch's default momentum 0.1)."""
     leaky_slope: float = 0.01
     input_joints: int = H36M17.num_joints
+    fusion: Literal["early", "late"] = "early"
+    """Where F_Q fuses the views (Table 5c): "early" is FLEX (multi-view convolution, then cross-view attention
+    before E_Q); "late" processes each view alone (view kernel 1, E_Q's temporal convolutions per view) and fuses
+    with the same attention just before the output layer."""
     rest_pose: Literal["totem", "tpose"] = "totem"
     """Rest pose of the FK skeleton (:data:`geometry.FLEX20_REST_DIRECTIONS`; "totem" as the released model)."""
     discriminator_channels: int = 500
@@ -118,6 +122,8 @@ class FlexConfig:
             raise ValueError(f"channels ({self.channels}) must be a multiple of heads ({self.heads})")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if self.fusion not in ("early", "late"):
+            raise ValueError(f"fusion must be 'early' or 'late', got {self.fusion!r}")
         if self.rest_pose not in FLEX20_REST_DIRECTIONS:
             raise ValueError(f"rest_pose must be one of {sorted(FLEX20_REST_DIRECTIONS)}, got {self.rest_pose!r}")
 
@@ -134,8 +140,11 @@ CONFIGS: dict[str, FlexConfig] = {
     # Tests and CPU experiments: the paper's structure (kernels, stages, attention, D) at width 32 with 4 heads
     # of 8; about 0.1 M generator parameters instead of 0.1 G.
     "cpu": FlexConfig(channels=32, heads=4, discriminator_channels=16),
+    # The shipped CPU models: width 128 with the paper's head width 16 and less dropout for short runs (0.5 M
+    # generator parameters). Fitting one fixed batch of 8 for 400 steps left 172 mm at width 32, 92 mm here.
+    "small": FlexConfig(channels=128, heads=8, dropout=0.1, discriminator_channels=64),
 }
-"""Named configurations: the paper's (Table 6) and a small one for CPU runs and tests."""
+"""Named configurations: the paper's (Table 6), a tiny one for tests and the shipped CPU one."""
 
 
 def parameter_count(model: nnx.Module) -> int:
@@ -287,8 +296,9 @@ class RotationBranch(nnx.Module):
         c = config.channels
         self.config = config
         self.expand = Block(nnx.Linear(3 * config.input_joints, c, rngs=rngs), c, config, rngs=rngs)
+        self.view_kernel = config.view_kernel if config.fusion == "early" else 1
         self.multi_view = nnx.List([
-            Block(nnx.Conv(c, c, (k, config.view_kernel), padding="VALID", rngs=rngs), c, config, rngs=rngs)
+            Block(nnx.Conv(c, c, (k, self.view_kernel), padding="VALID", rngs=rngs), c, config, rngs=rngs)
             for k in config.stage1_kernels])
         self.fusion = ViewAttention(c, config.heads, rngs=rngs)
         self.temporal = nnx.List([
@@ -300,11 +310,17 @@ class RotationBranch(nnx.Module):
         frames, views = x.shape[2], x.shape[1]
         keys = _keys(key, 1 + len(self.multi_view) + len(self.temporal))
         x = jnp.swapaxes(self.expand(x, keys[0]), 1, 2)  # (B, T, K, C)
-        pad = self.config.view_kernel // 2
-        wrapped = jnp.take(x, np.arange(-pad, views + self.config.view_kernel - 1 - pad) % views, axis=2)
+        pad = self.view_kernel // 2
+        wrapped = jnp.take(x, np.arange(-pad, views + self.view_kernel - 1 - pad) % views, axis=2)
         x = sum(_pool_time(block(wrapped, k), frames) for block, k in zip(self.multi_view, keys[1:]))
-        x = self.fusion(x)  # (B, T, C)
+        late = self.config.fusion == "late"
+        if late:
+            x = jnp.swapaxes(x, 1, 2).reshape(-1, frames, x.shape[-1])  # (B K, T, C): E_Q per view
+        else:
+            x = self.fusion(x)  # (B, T, C)
         x = sum(_pool_time(block(x, k), frames) for block, k in zip(self.temporal, keys[1 + len(self.multi_view):]))
+        if late:
+            x = self.fusion(jnp.swapaxes(x.reshape(-1, views, frames, x.shape[-1]), 1, 2))
         return self.shrink(x)
 
 

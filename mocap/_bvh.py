@@ -9,18 +9,25 @@ Units: BVH has none. Pass ``metres_per_unit``: :data:`CMU_METRES_PER_UNIT` for C
 as 18_01.bvh (1/0.45 inch), :data:`SALSA_METRES_PER_UNIT` for the rescaled 60/61 salsa files.
 A header rate within 0.01 % of an integer is snapped to it (``0.008333`` -> 120 Hz).
 Some headers give a wrong ``Frame Time`` (18_01.bvh says 30 fps, the clip is 120 Hz): pass ``fps``.
+
+Writer: :func:`write_bvh` writes a motion given as :class:`~mocap.Motion`'s fields (z-up world, metres) as a
+y-up BVH that :func:`read_bvh`, with the same ``metres_per_unit``, reads back to the same node positions.
 """
 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
-from ._motion import Motion, build_motion, euler_matrices, malformed
+import geometry
 
-__all__ = ["CMU_METRES_PER_UNIT", "SALSA_METRES_PER_UNIT", "read_bvh"]
+from ._motion import Y_UP_TO_Z_UP, Motion, build_motion, euler_matrices, malformed
+
+__all__ = ["CMU_METRES_PER_UNIT", "SALSA_METRES_PER_UNIT", "read_bvh", "write_bvh"]
 
 CMU_METRES_PER_UNIT = 0.0254 / 0.45
 """CMU's length unit (ASF ``length 0.45``): 1/0.45 inch = 56.44 mm."""
@@ -209,3 +216,132 @@ def read_bvh(path: str | Path, metres_per_unit: float, fps: float | None = None,
     offsets_array[0] = 0.0
     return build_motion(tuple(names), tuple(parents), offsets_array, local, root_positions, fps,
                         metres_per_unit, name=name or path.stem)
+
+
+_WRITE_ORDER = "ZYX"
+"""Euler order of the written rotation channels (``Zrotation Yrotation Xrotation``: ``R = Rz @ Ry @ Rx``, the
+most common BVH order), as :func:`geometry.matrix_to_euler` and the reader's :func:`~mocap.euler_matrices`."""
+_ROTATION_TOLERANCE = 1e-5
+"""Largest accepted ``|R^T R - I|`` entry: float32 rotations pass, matrices that are not rotations do not."""
+
+
+def write_bvh(
+    path: str | Path,
+    joint_names: Sequence[str],
+    parents: Sequence[int],
+    offsets: Float[ArrayLike, "J 3"],
+    local_rotations: Float[ArrayLike, "T J 3 3"],
+    root_positions: Float[ArrayLike, "T 3"],
+    *,
+    fps: float,
+    metres_per_unit: float,
+) -> tuple[str, ...]:
+    """Write a skeletal motion as a BVH file; ``read_bvh(path, metres_per_unit)`` returns the same node positions.
+
+    The inputs follow :class:`~mocap.Motion` (a motion's fields can be passed as they are): ``offsets`` are the
+    rest offsets from the parent in the parent's frame (metres; the root's is ignored), ``local_rotations`` the
+    rotations relative to the parent's frame (the root's relative to the z-up world) and ``root_positions`` the
+    root in the z-up world (metres). The file is y-up, as the reader assumes: the root's position and rotation
+    get the inverse of :data:`Y_UP_TO_Z_UP`; offsets and the other rotations are written as they are, so the
+    file's rest pose is the offsets read in a y-up frame.
+
+    Layout: nodes depth first (children in index order). ``ROOT`` has ``OFFSET 0 0 0`` and the channels
+    ``Xposition Yposition Zposition Zrotation Yrotation Xrotation``; every other joint with children has
+    ``Zrotation Yrotation Xrotation`` (degrees, :func:`geometry.matrix_to_euler` order ``"ZYX"``). Joints with
+    zero offsets (e.g. FLEX20's duplicates) are ordinary joints. A joint without children becomes an
+    ``End Site`` with its offset: BVH gives end sites neither a name nor channels, so its rotation, which moves
+    no node, is dropped and the reader names the node ``<parent>_end``. Lengths are written in units of
+    ``metres_per_unit``, all values with 8 decimals.
+
+    Returns:
+        The name :func:`read_bvh` gives each input joint (input order): its own, or ``<parent>_end`` for a joint
+        without children.
+
+    Raises:
+        ValueError: inconsistent shapes or names (not a tree, whitespace in a name, two childless joints under
+            one parent: their end sites would get the same name), no frames, non-finite values, matrices that are
+            not rotations, or a non-positive ``fps`` or ``metres_per_unit``.
+    """
+    path = Path(path)
+    skeleton = geometry.Skeleton(path.name, tuple(joint_names), tuple(int(p) for p in parents))  # checks the tree
+    offsets, local_rotations, root_positions = _checked_motion(
+        path.name, skeleton, offsets, local_rotations, root_positions, fps, metres_per_unit)
+    children = {j: [c for c, p in enumerate(skeleton.parents) if p == j] for j in range(skeleton.num_joints)}
+    end_sites = {j for j, c in children.items() if not c and j != skeleton.root}
+    read_names = tuple(skeleton.joints[skeleton.parents[j]] + "_end" if j in end_sites else name
+                       for j, name in enumerate(skeleton.joints))
+    if len(set(read_names)) != len(read_names):
+        clashes = sorted({n for n in read_names if read_names.count(n) > 1})
+        raise ValueError(f"{path.name}: the reader would name several nodes {clashes} (an end site is named "
+                         f"'<parent>_end'; one childless joint per parent, and no joint named like an end site)")
+
+    lines, channel_joints = _hierarchy(skeleton, children, end_sites, offsets / metres_per_unit)
+    file_rotations = local_rotations[:, channel_joints].copy()
+    file_rotations[:, 0] = Y_UP_TO_Z_UP.T @ file_rotations[:, 0]  # the root comes first; the reader turns it back
+    degrees = np.rad2deg(np.asarray(geometry.matrix_to_euler(file_rotations, _WRITE_ORDER), dtype=np.float64))
+    file_root = root_positions @ Y_UP_TO_Z_UP / metres_per_unit  # row-vector form of Y_UP_TO_Z_UP.T @ p
+    num_frames = len(root_positions)
+    lines += ["MOTION", f"Frames: {num_frames}", f"Frame Time: {1.0 / fps:.10f}"]
+    with path.open("w", encoding="latin-1", newline="\n") as file:
+        file.write("\n".join(lines) + "\n")
+        np.savetxt(file, np.concatenate([file_root, degrees.reshape(num_frames, -1)], axis=1), fmt="%.8f")
+    return read_names
+
+
+def _checked_motion(
+    file: str, skeleton: geometry.Skeleton, offsets: ArrayLike, local_rotations: ArrayLike, root_positions: ArrayLike,
+    fps: float, metres_per_unit: float,
+) -> tuple[Float[np.ndarray, "J 3"], Float[np.ndarray, "T J 3 3"], Float[np.ndarray, "T 3"]]:
+    """:func:`write_bvh`'s arrays as float64 NumPy, after checking everything that would make a bad file."""
+    offsets, local_rotations, root_positions = (
+        np.asarray(a, dtype=np.float64) for a in (offsets, local_rotations, root_positions))
+    num_joints = skeleton.num_joints
+    num_frames = local_rotations.shape[0] if local_rotations.ndim == 4 else "T"
+    for name, array, shape in (("offsets", offsets, (num_joints, 3)),
+                               ("local_rotations", local_rotations, (num_frames, num_joints, 3, 3)),
+                               ("root_positions", root_positions, (num_frames, 3))):
+        if array.shape != shape:
+            raise ValueError(f"{file}: {name} must have shape ({', '.join(map(str, shape))}) for "
+                             f"{num_joints} joints, got {array.shape}")
+    if num_frames < 1:
+        raise ValueError(f"{file}: no frames to write")
+    if not (np.isfinite(offsets).all() and np.isfinite(local_rotations).all() and np.isfinite(root_positions).all()):
+        raise ValueError(f"{file}: non-finite offsets, rotations or root positions")
+    gram_error = np.abs(np.swapaxes(local_rotations, -1, -2) @ local_rotations - np.eye(3)).max()
+    if gram_error > _ROTATION_TOLERANCE or (np.linalg.det(local_rotations) <= 0).any():
+        raise ValueError(f"{file}: local_rotations are not rotation matrices (|R^T R - I| up to {gram_error:.2g})")
+    if not (np.isfinite(fps) and fps > 0 and np.isfinite(metres_per_unit) and metres_per_unit > 0):
+        raise ValueError(f"{file}: fps and metres_per_unit must be positive, got {fps} and {metres_per_unit}")
+    if any(not name.isascii() or name.split() != [name] for name in skeleton.joints):
+        raise ValueError(f"{file}: BVH names must be non-empty ASCII without whitespace, got {skeleton.joints}")
+    return offsets, local_rotations, root_positions
+
+
+def _hierarchy(
+    skeleton: geometry.Skeleton, children: dict[int, list[int]], end_sites: set[int],
+    offsets: Float[np.ndarray, "J 3"],
+) -> tuple[list[str], list[int]]:
+    """The ``HIERARCHY`` lines (``offsets`` in file units) and the joints with channels in the order the frame
+    lines list them: depth first from the root, children in index order."""
+    lines, channel_joints = ["HIERARCHY"], []
+    rotation = " ".join(f"{axis}rotation" for axis in _WRITE_ORDER)
+
+    def node(j: int, depth: int) -> None:
+        indent, offset = "  " * depth, offsets[j] if j != skeleton.root else np.zeros(3)
+        if j in end_sites:
+            lines.append(f"{indent}End Site")
+        else:
+            lines.append(f"{indent}{'ROOT' if j == skeleton.root else 'JOINT'} {skeleton.joints[j]}")
+            channel_joints.append(j)
+        lines.append(indent + "{")
+        lines.append(f"{indent}  OFFSET {offset[0]:.8f} {offset[1]:.8f} {offset[2]:.8f}")
+        if j == skeleton.root:
+            lines.append(f"{indent}  CHANNELS 6 Xposition Yposition Zposition {rotation}")
+        elif j not in end_sites:
+            lines.append(f"{indent}  CHANNELS 3 {rotation}")
+        for child in children[j]:
+            node(child, depth + 1)
+        lines.append(indent + "}")
+
+    node(skeleton.root, 0)
+    return lines, channel_joints

@@ -1,0 +1,263 @@
+"""Training FLEX on synthetic CMU motion (paper Sec. 3.1 and 4; the project's shared loop, :mod:`training`).
+
+The data is a pool of samples (:func:`~flex.make_sample`) drawn once from consecutive seeds and cached in
+``cache_dir`` (a file named by a hash of its config): a ``static_fraction`` of them with static cameras, the
+rest with moving ones (the paper's dynamic setting), from the training clips only; whole clips
+(:data:`TEST_CLIPS`) are held out. Step i draws its batch indices, dropout and nothing else from
+``fold_in(key(seed), i)``, so a resumed run repeats an uninterrupted one exactly.
+
+A step updates the generator (F_Q, E_Q, F_S, E_S) on Eq. 9, whose adversarial term reaches E_Q through the
+discriminator, and then the discriminator on its LSGAN loss against the step's (detached) predictions. Two
+Adam optimisers (the official trainer's AMSGrad; ``generator_lr`` and ``discriminator_lr``), here with a
+warm-up and a cosine decay because CPU runs are short.
+
+Outputs in ``workdir``: ``config.json``, ``log.jsonl`` (losses; at validation steps MPJPE protocol #1 in mm
+on held-out samples), ``checkpoints/`` (orbax, atomic) and ``model/`` (the generator, read back by
+:func:`load_flex`). Data parallel over the local devices as :func:`training.data_parallel_shardings` says.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import tqdm
+from flax import nnx
+from jax.sharding import NamedSharding
+
+import geometry
+import mocap
+import training
+from geometry import FLEX20, H36M17
+
+from ._data import Batch, DataConfig, make_sample
+from ._losses import LossWeights, discriminator_loss, generator_loss
+from ._model import CONFIGS, Discriminator, Flex, FlexConfig
+
+__all__ = [
+    "TEST_CLIPS", "TRAIN_CLIPS", "TrainConfig", "TrainState", "VALIDATION_CLIPS", "build_pool", "load_flex", "train",
+    "train_step",
+]
+
+TEST_CLIPS: tuple[str, ...] = ("02_05_punch", "60_05_61_05_salsa")
+"""Held out from training: FLEX's test clips (one single-person, one two-person clip)."""
+VALIDATION_CLIPS: tuple[str, ...] = ("03_01_uneven",)
+"""Held out from training and from the test: the training log's validation MPJPE."""
+TRAIN_CLIPS: tuple[str, ...] = tuple(c for c in mocap.list_clips() if c not in TEST_CLIPS + VALIDATION_CLIPS)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a FLEX training run (written to ``config.json``)."""
+
+    model: str | FlexConfig = "cpu"
+    """A name in :data:`~flex.CONFIGS` or a :class:`~flex.FlexConfig`; its ``views`` must be ``data.views``."""
+    data: DataConfig = DataConfig(views=4, frames=64, clips=TRAIN_CLIPS)
+    validation_data: DataConfig = DataConfig(views=4, frames=64, clips=VALIDATION_CLIPS, camera_motion="dynamic")
+    pool_size: int = 2048
+    """Training samples drawn once (seeds 0 ...) and cached."""
+    static_fraction: float = 0.5
+    """Share of the pool with static cameras; the rest move (``camera_motion="dynamic"``)."""
+    validation_size: int = 64
+    batch_size: int = 16
+    steps: int = 3000
+    generator_lr: float = 1e-3
+    """The official trainer's Adam rate for the generator (AMSGrad)."""
+    discriminator_lr: float = 1e-4
+    warmup_steps: int = 100
+    end_lr_fraction: float = 0.01
+    """The cosine decay ends at this fraction of each peak rate."""
+    losses: LossWeights = LossWeights()
+    seed: int = 0
+    checkpoint_interval: int = 250
+    validation_interval: int = 500
+    log_interval: int = 50
+    cache_dir: str | None = None
+    """Where sample pools are cached; None: ``<workdir>/data_cache``."""
+
+    def __post_init__(self) -> None:
+        for name in ("pool_size", "validation_size", "batch_size", "steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.warmup_steps < self.steps:
+            raise ValueError(f"warmup_steps must be in [0, steps={self.steps}), got {self.warmup_steps}")
+        if not 0.0 <= self.static_fraction <= 1.0:
+            raise ValueError(f"static_fraction must be in [0, 1], got {self.static_fraction}")
+        if isinstance(self.model, str) and self.model not in CONFIGS:
+            raise ValueError(f"model must be one of {sorted(CONFIGS)} or a FlexConfig, got {self.model!r}")
+        model = self.model_config
+        if not model.views == self.data.views == self.validation_data.views:
+            raise ValueError(f"the model has {model.views} views, the data {self.data.views} and "
+                             f"{self.validation_data.views}")
+        for data in (self.data, self.validation_data):
+            if data.frames < model.min_frames:
+                raise ValueError(f"windows of {data.frames} frames are shorter than the model's {model.min_frames}")
+        shared = set(self.data.clip_names) & set(self.validation_data.clip_names)
+        if shared:
+            raise ValueError(f"training and validation share clips {sorted(shared)}")
+
+    @property
+    def model_config(self) -> FlexConfig:
+        return CONFIGS[self.model] if isinstance(self.model, str) else self.model
+
+
+class TrainState(NamedTuple):
+    """Everything a step changes, plus the run's key: exactly what a checkpoint holds."""
+
+    params: Any
+    """The generator's parameters."""
+    rest: Any
+    """The generator's other state (batch-norm running averages)."""
+    discriminator: Any
+    """The discriminator's parameters."""
+    generator_opt: optax.OptState
+    discriminator_opt: optax.OptState
+    step: jax.Array
+    key: jax.Array
+    """``key(seed)``: step i uses ``fold_in(key, i)``."""
+
+
+def _schedule(config: TrainConfig, peak: float) -> optax.Schedule:
+    """Linear warm-up to ``peak``, then cosine decay to ``peak * end_lr_fraction`` at the last step."""
+    return optax.warmup_cosine_decay_schedule(0.0, peak, config.warmup_steps, config.steps,
+                                              peak * config.end_lr_fraction)
+
+
+def _optimizers(config: TrainConfig) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
+    """AMSGrad for the generator and for the discriminator."""
+    return (optax.amsgrad(_schedule(config, config.generator_lr)),
+            optax.amsgrad(_schedule(config, config.discriminator_lr)))
+
+
+def _pool_file(config: DataConfig, count: int, first_seed: int, cache_dir: Path) -> Path:
+    name = json.dumps([training.to_jsonable(config), count, first_seed], sort_keys=True)
+    return cache_dir / f"flex_pool_{hashlib.sha1(name.encode()).hexdigest()[:16]}.npz"
+
+
+def build_pool(config: DataConfig, count: int, first_seed: int, cache_dir: str | Path | None = None,
+               progress: bool = True) -> Batch:
+    """``count`` samples of ``config`` from seeds ``first_seed ...``, stacked (float32, cameras dropped: training
+    needs none), cached in ``cache_dir`` when given."""
+    path = None if cache_dir is None else _pool_file(config, count, first_seed, Path(cache_dir))
+    if path is not None and path.is_file():
+        with np.load(path) as stored:
+            return Batch(**{name: stored[name] for name in stored.files}, cameras=None)
+    samples = [make_sample(seed, config)._replace(cameras=None)
+               for seed in tqdm.trange(first_seed, first_seed + count, disable=not progress, desc="flex samples")]
+    pool = jax.tree.map(lambda *leaves: np.stack(leaves).astype(np.float32), *samples)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_suffix(".partial.npz")
+        np.savez(temporary, **{name: value for name, value in pool._asdict().items() if value is not None})
+        temporary.replace(path)  # atomic: a killed run never leaves half a pool
+    return pool
+
+
+def _training_pool(config: TrainConfig, cache_dir: Path, progress: bool) -> Batch:
+    static = round(config.static_fraction * config.pool_size)
+    parts = [build_pool(dataclasses.replace(config.data, camera_motion=motion), count, first, cache_dir, progress)
+             for motion, count, first in (("static", static, 0), ("dynamic", config.pool_size - static, static))
+             if count]
+    return jax.tree.map(lambda *leaves: np.concatenate(leaves), *parts)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
+def train_step(
+    graphdef: nnx.GraphDef, discriminator_graphdef: nnx.GraphDef, config: TrainConfig, replicated: NamedSharding,
+    state: TrainState, batch: Batch, key: jax.Array,
+) -> tuple[TrainState, dict[str, jax.Array]]:
+    """One generator step on Eq. 9 and one discriminator step on its LSGAN loss (pure; see the module docstring)."""
+    generator_optimizer, discriminator_optimizer = _optimizers(config)
+    discriminator = nnx.merge(discriminator_graphdef, state.discriminator)
+
+    def generator_objective(params):
+        model = nnx.merge(graphdef, params, state.rest, copy=True)
+        outputs = model(batch.points_2d, batch.confidences, key=key)
+        total, terms = generator_loss(outputs, batch, discriminator, config.losses)
+        return total, (terms, outputs, nnx.state(model, nnx.Not(nnx.Param)))
+
+    (total, (terms, outputs, rest)), grads = jax.value_and_grad(generator_objective, has_aux=True)(state.params)
+    updates, generator_opt = generator_optimizer.update(grads, state.generator_opt, state.params)
+    params = optax.apply_updates(state.params, updates)
+
+    def discriminator_objective(discriminator_params):
+        return discriminator_loss(nnx.merge(discriminator_graphdef, discriminator_params), outputs, batch)
+
+    d_loss, d_grads = jax.value_and_grad(discriminator_objective)(state.discriminator)
+    d_updates, discriminator_opt = discriminator_optimizer.update(d_grads, state.discriminator_opt, state.discriminator)
+    new_state = TrainState(params, rest, optax.apply_updates(state.discriminator, d_updates), generator_opt,
+                           discriminator_opt, state.step + 1, state.key)
+    metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
+    return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
+
+
+@partial(jax.jit, static_argnums=0)
+def _validation_errors(graphdef: nnx.GraphDef, params: Any, rest: Any, batch: Batch) -> jax.Array:
+    """Per sample and view the MPJPE (metres, protocol #1, the 17 H36M joints) of the deterministic model."""
+    outputs = nnx.merge(graphdef, params, rest)(batch.points_2d, batch.confidences)
+    predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, H36M17)
+    return jnp.mean(geometry.mpjpe_root_relative(predicted, batch.joints.astype(predicted.dtype),
+                                                 H36M17.index("mid_hip")), axis=-1)
+
+
+def _validate(graphdef, state: TrainState, pool: Batch, batch_size: int) -> dict[str, float]:
+    errors = [_validation_errors(graphdef, state.params, state.rest, jax.tree.map(lambda x: x[i: i + batch_size], pool))
+              for i in range(0, pool.points_2d.shape[0], batch_size)]
+    return {"val_mpjpe_mm": 1000.0 * float(jnp.mean(jnp.concatenate(errors)))}
+
+
+def load_flex(path: str | Path) -> Flex:
+    """The generator written by :func:`train` to ``<workdir>/model`` (deterministic use: call it without a key)."""
+    return training.load_model_state(path, lambda fields: Flex(FlexConfig(**fields), rngs=nnx.Rngs(0)))
+
+
+def train(
+    config: TrainConfig,
+    workdir: str | Path,
+    *,
+    resume: bool,
+    log: Callable[[dict], None] = lambda record: None,
+    progress: bool = True,
+) -> Flex:
+    """Train per ``config`` in ``workdir`` and return the generator (see the module docstring for the files).
+
+    ``resume=True`` continues from the latest checkpoint (refusing a different config); ``resume=False``
+    refuses a ``workdir`` that already has checkpoints. ``log`` receives every logged record."""
+    replicated, batch_sharding = training.data_parallel_shardings(config.batch_size)
+    workdir = Path(workdir).resolve()
+    cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
+    pool = _training_pool(config, cache_dir, progress)
+    validation = build_pool(config.validation_data, config.validation_size, 1_000_000, cache_dir, progress)
+
+    model_config = config.model_config
+    rngs = nnx.Rngs(config.seed)
+    graphdef, params, rest = nnx.split(Flex(model_config, rngs=rngs), nnx.Param, ...)
+    discriminator_graphdef, discriminator = nnx.split(Discriminator(model_config, rngs=rngs))
+    generator_optimizer, discriminator_optimizer = _optimizers(config)
+    state = TrainState(params, rest, discriminator, generator_optimizer.init(params),
+                       discriminator_optimizer.init(discriminator), jnp.asarray(0, jnp.int32),
+                       jax.random.key(config.seed))
+
+    def step(state: TrainState, i: int) -> tuple[TrainState, dict[str, jax.Array]]:
+        sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
+        index = np.asarray(jax.random.randint(sample_key, (config.batch_size,), 0, config.pool_size))
+        batch = jax.device_put(jax.tree.map(lambda x: x[index], pool), batch_sharding)
+        return train_step(graphdef, discriminator_graphdef, config, replicated, state, batch, dropout_key)
+
+    state = training.run_training(
+        workdir, config, state, step, steps=config.steps, resume=resume, log_interval=config.log_interval,
+        checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
+        validate=lambda state: _validate(graphdef, state, validation, config.batch_size), replicated=replicated,
+        learning_rate=_schedule(config, config.generator_lr),
+        log=log, progress=progress, description="flex train")
+    training.save_model(workdir / "model", model_config, nnx.merge_state(state.params, state.rest))
+    return nnx.merge(graphdef, state.params, state.rest)

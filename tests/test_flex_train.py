@@ -1,0 +1,179 @@
+"""FLEX training: the generator and discriminator step, resume, the saved model, the late-fusion variant and data
+parallelism (two forced CPU devices)."""
+
+import dataclasses
+import json
+import os
+import pickle
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+from jaxtyping import TypeCheckError
+from numpy.testing import assert_allclose, assert_array_equal
+
+import flex
+import training
+from flex import _train
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = dataclasses.replace(flex.CONFIGS["cpu"], channels=8, heads=2, discriminator_channels=4, dropout=0.0)
+DATA = flex.DataConfig(views=2, frames=16, clips=("02_01_walk", "60_03_61_03_salsa"))
+VALIDATION = flex.DataConfig(views=2, frames=16, clips=flex.VALIDATION_CLIPS, camera_motion="dynamic")
+
+
+def _config(cache_dir, **overrides) -> flex.TrainConfig:
+    base = flex.TrainConfig(model=dataclasses.replace(TINY, views=2), data=DATA, validation_data=VALIDATION,
+                            pool_size=8, validation_size=4, batch_size=4, steps=4, warmup_steps=1,
+                            generator_lr=1e-2, discriminator_lr=1e-2, checkpoint_interval=2, validation_interval=2,
+                            log_interval=1, cache_dir=str(cache_dir))
+    return dataclasses.replace(base, **overrides)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("flex_cache")
+
+
+def _fixed_batch_steps(config: flex.TrainConfig, num_steps: int):
+    """``num_steps`` steps on the first ``batch_size`` pool samples, sharded over all local devices."""
+    model_config = config.model_config
+    rngs = nnx.Rngs(config.seed)
+    graphdef, params, rest = nnx.split(flex.Flex(model_config, rngs=rngs), nnx.Param, ...)
+    discriminator_graphdef, discriminator = nnx.split(flex.Discriminator(model_config, rngs=rngs))
+    generator_optimizer, discriminator_optimizer = _train._optimizers(config)
+    state = flex.TrainState(params, rest, discriminator, generator_optimizer.init(params),
+                            discriminator_optimizer.init(discriminator), jnp.asarray(0, jnp.int32), jax.random.key(0))
+    replicated, sharded = training.data_parallel_shardings(config.batch_size)
+    pool = flex.build_pool(config.data, config.batch_size, 0, config.cache_dir, progress=False)
+    batch = jax.device_put(pool, sharded)
+    state = jax.device_put(state, replicated)
+    losses = []
+    for i in range(num_steps):
+        state, metrics = flex.train_step(graphdef, discriminator_graphdef, config, replicated, state, batch,
+                                         jax.random.key(i))
+        losses.append({k: float(v) for k, v in metrics.items()})
+    return state, losses
+
+
+def test_steps_fit_a_fixed_batch_and_train_the_discriminator(cache_dir):
+    config = _config(cache_dir, steps=30, warmup_steps=1)
+    state, losses = _fixed_batch_steps(config, 30)
+    assert all(np.isfinite(list(m.values())).all() for m in losses)
+    assert losses[-1]["position"] < 0.5 * losses[0]["position"], [m["position"] for m in losses]
+    assert losses[-1]["discriminator"] < losses[0]["discriminator"]
+    assert int(state.step) == 30
+
+
+def test_pool_is_cached_and_float32(cache_dir):
+    first = flex.build_pool(DATA, 2, 100, cache_dir, progress=False)
+    again = flex.build_pool(DATA, 2, 100, cache_dir, progress=False)
+    assert first.cameras is None and first.points_2d.dtype == np.float32
+    for a, b in zip(first[:-1], again[:-1]):
+        assert_array_equal(a, b)
+    assert len(list(Path(cache_dir).glob("flex_pool_*.npz"))) >= 1
+
+
+@pytest.fixture(scope="module")
+def full_run(cache_dir, tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("flex_full")
+    config = _config(cache_dir)
+    return config, workdir, flex.train(config, workdir, resume=False, progress=False)
+
+
+def _leaves(model) -> list[np.ndarray]:
+    return [np.asarray(x) for x in jax.tree.leaves(nnx.state(model, nnx.Param))]
+
+
+def test_resume_is_bit_identical_and_the_model_loads(full_run, tmp_path):
+    config, full_dir, full_model = full_run
+
+    class Killed(Exception):
+        pass
+
+    def kill(record):
+        if record["step"] == 3:
+            raise Killed
+
+    with pytest.raises(Killed):
+        flex.train(config, tmp_path, resume=False, log=kill, progress=False)
+    resumed = flex.train(config, tmp_path, resume=True, progress=False)
+    for a, b in zip(_leaves(full_model), _leaves(resumed)):
+        assert_array_equal(a, b)
+    records = [json.loads(line) for line in (full_dir / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records] == [1, 2, 3, 4]
+    assert {"loss", "position", "skeleton", "adversarial", "root", "contact", "contact_velocity", "discriminator",
+            "lr"} <= set(records[0])
+    assert records[1]["val_mpjpe_mm"] > 0
+    loaded = flex.load_flex(full_dir / "model")
+    for a, b in zip(_leaves(full_model), _leaves(loaded)):
+        assert_array_equal(a, b)
+    pool = flex.build_pool(VALIDATION, 2, 7, config.cache_dir, progress=False)
+    assert_allclose(np.asarray(loaded(pool.points_2d, pool.confidences).joints),
+                    np.asarray(full_model(pool.points_2d, pool.confidences).joints), rtol=1e-6)
+
+
+def test_config_errors(cache_dir):
+    with pytest.raises(ValueError, match="share clips"):
+        _config(cache_dir, validation_data=DATA)
+    with pytest.raises(ValueError, match="the model has 2 views"):
+        _config(cache_dir, data=dataclasses.replace(DATA, views=3))
+    with pytest.raises(ValueError, match="shorter than the model"):
+        _config(cache_dir, data=dataclasses.replace(DATA, frames=8))
+
+
+def test_late_fusion_runs_each_view_alone_before_fusing():
+    config = dataclasses.replace(TINY, views=3, fusion="late")
+    model = flex.Flex(config, rngs=nnx.Rngs(0))
+    points = jax.random.normal(jax.random.key(0), (2, 3, 16, 17, 2)) * 50 + 500
+    confidences = jnp.ones((2, 3, 16, 17))
+    out = model(points, confidences)
+    assert out.joints.shape == (2, 3, 16, 20, 3) and np.isfinite(np.asarray(out.joints)).all()
+    assert model.rotation_branch.multi_view[0].layer.kernel.shape[1] == 1  # no mixing of views before the fusion
+    with pytest.raises((ValueError, TypeCheckError), match="fusion"):
+        dataclasses.replace(TINY, fusion="middle")
+
+
+def _outputs_after_steps(config: flex.TrainConfig, num_steps: int) -> tuple[list[float], np.ndarray]:
+    """The step losses and the trained model's output joints on the training batch, normalised with the batch's
+    statistics (``TINY`` has no dropout): the running averages lag behind the noisy biases described below."""
+    state, losses = _fixed_batch_steps(config, num_steps)
+    graphdef = nnx.graphdef(flex.Flex(config.model_config, rngs=nnx.Rngs(0)))
+    pool = flex.build_pool(config.data, config.batch_size, 0, config.cache_dir, progress=False)
+    joints = nnx.merge(graphdef, state.params, state.rest)(pool.points_2d, pool.confidences, key=jax.random.key(0)).joints
+    return [m["loss"] for m in losses], np.asarray(joints)
+
+
+def test_two_devices_match_one(cache_dir, tmp_path):
+    """Each batch split over 2 (forced CPU) devices gives the 1-device losses and model. Compared through the
+    model's output, not its parameters: the biases in front of batch norm get pure rounding noise as gradients,
+    which Adam's first steps scale up to full-size updates, but batch norm removes them again."""
+    config = _config(cache_dir)
+    (tmp_path / "config.pkl").write_bytes(pickle.dumps(config))
+    script = textwrap.dedent("""
+        import pickle, sys
+        import geometry  # before jax computes (XLA flags)
+        import jax
+        import numpy as np
+        jax.config.update("jax_enable_x64", True)
+        jax.config.update("jax_numpy_rank_promotion", "raise")
+        assert jax.local_device_count() == 2, jax.local_devices()
+        sys.path.insert(0, sys.argv[3])
+        from test_flex_train import _outputs_after_steps
+        losses, joints = _outputs_after_steps(pickle.loads(open(sys.argv[1], "rb").read()), 3)
+        np.savez(sys.argv[2], losses=losses, joints=joints)
+    """)
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    out = tmp_path / "two_devices.npz"
+    subprocess.run([sys.executable, "-c", script, str(tmp_path / "config.pkl"), str(out), str(Path(__file__).parent)],
+                   check=True, env=env, cwd=REPO, timeout=300)
+    losses, joints = _outputs_after_steps(config, 3)
+    with np.load(out) as stored:
+        assert_allclose(stored["losses"], losses, rtol=1e-5)
+        assert_allclose(stored["joints"], joints, rtol=1e-4, atol=1e-5)
