@@ -476,8 +476,11 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
 # Public batched API.
 
 
-def projection_matrices(cameras: Camera | Float[ArrayLike, "views 3 4"]) -> Float[Array, "views 3 4"]:
-    """``K [R | t]`` per camera of a rig (undistorted pinhole; a rig with distortion is refused)."""
+def projection_matrices(
+    cameras: Camera | Float[ArrayLike, "*frames views 3 4"]
+) -> Float[Array, "*frames views 3 4"]:
+    """``K [R | t]`` per camera of a rig (undistorted pinhole; a rig with distortion is refused), or the given
+    matrices, shared or per frame."""
     if isinstance(cameras, Camera):
         if cameras.K.ndim != 3:
             raise ValueError(f"expected a rig with a leading views axis, got K of shape {cameras.K.shape}")
@@ -487,7 +490,7 @@ def projection_matrices(cameras: Camera | Float[ArrayLike, "views 3 4"]) -> Floa
         return projection_matrix(cameras)
     P = jnp.asarray(cameras)
     if P.shape[-2:] != (3, 4):
-        raise ValueError(f"projections must have shape (views, 3, 4), got {P.shape}")
+        raise ValueError(f"projections must have shape (*frames, views, 3, 4), got {P.shape}")
     return P
 
 
