@@ -71,5 +71,5 @@ def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp
         jcsat.ShelfExperimentConfig(views=(1, 1))
     with pytest.raises(ValueError, match="only 2 views are kept"):
         jcsat.run_shelf_experiment(jcsat.ShelfExperimentConfig(quick=True, views=(0, 1), perturb_cameras=3), tmp_path)
-    with pytest.raises(FileNotFoundError, match="not a model folder"):
+    with pytest.raises(FileNotFoundError, match="not a saved model folder"):
         jcsat.load_model(tmp_path)
