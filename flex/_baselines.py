@@ -37,8 +37,8 @@ camera frame at frame t (root-relative, so the translation cancels):
 - ``"calibration"``: the camera the method was given. This is what the method can report in view k's frame
   with the information it has, and the only option for a deployment that does not know how the world frame
   relates to the true cameras; it adds that camera's own orientation error to the shape error, which can also
-  partly cancel it (measured on 4 sequences x 64 frames, perfect detections: 3 % and 4 % within about 1 mm of
-  ``"true"``; a stale calibration of moving cameras 63 instead of 44 mm for the DLT).
+  partly cancel it; the two differ little for perturbed extrinsics and much for a stale calibration of moving
+  cameras.
 
 Joints that cannot be triangulated (fewer than two views with a positive confidence, or an ill-posed DLT) get
 the root-relative offset of the same joint at the nearest earlier frame where it and the root were determined

@@ -140,8 +140,8 @@ CONFIGS: dict[str, FlexConfig] = {
     # Tests and CPU experiments: the paper's structure (kernels, stages, attention, D) at width 32 with 4 heads
     # of 8; about 0.1 M generator parameters instead of 0.1 G.
     "cpu": FlexConfig(channels=32, heads=4, discriminator_channels=16),
-    # The shipped CPU models: width 128 with the paper's head width 16 and less dropout for short runs (0.5 M
-    # generator parameters). Fitting one fixed batch of 8 for 400 steps left 172 mm at width 32, 92 mm here.
+    # CPU training runs: width 128 with the paper's head width 16 and less dropout for short runs (1.3 M
+    # generator parameters, flex.parameter_count): width 32 fits even one fixed batch poorly.
     "small": FlexConfig(channels=128, heads=8, dropout=0.1, discriminator_channels=64),
 }
 """Named configurations: the paper's (Table 6), a tiny one for tests and the shipped CPU one."""
