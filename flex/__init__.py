@@ -15,9 +15,17 @@ from ._data import local_rotations as local_rotations
 from ._data import make_batch as make_batch
 from ._data import make_sample as make_sample
 from ._data import root_frame as root_frame
+from ._data import sign_continuous as sign_continuous
 from ._data import symmetric_bone_lengths as symmetric_bone_lengths
 from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
+from ._experiment import averaged_monocular as averaged_monocular
+from ._experiment import load_models as load_models
+from ._experiment import run_experiment as run_experiment
+from ._experiment import train_models as train_models
+from ._experiment import ExperimentConfig as ExperimentConfig
+from ._experiment import MODELS as MODELS
+from ._experiment import SHIPPED_MODELS as SHIPPED_MODELS
 from ._export import to_bvh as to_bvh
 from ._losses import adversarial_loss as adversarial_loss
 from ._losses import contact_loss as contact_loss
@@ -50,9 +58,12 @@ from ._train import TrainState as TrainState
 from ._train import VALIDATION_CLIPS as VALIDATION_CLIPS
 
 __all__ = [
-    "adversarial_loss", "baseline_cameras", "Batch", "CONFIGS", "contact_loss", "contact_velocity_loss", "DataConfig",
-    "Discriminator", "discriminator_loss", "Flex", "flex_forward_kinematics", "FlexConfig", "FlexOutputs",
-    "generator_loss", "local_rotations", "LossWeights", "make_batch", "make_sample", "motion_metrics", "MotionMetrics",
-    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "position_loss", "root_frame", "root_loss",
-    "RotationDiscriminator", "skeleton_loss", "symmetric_bone_lengths", "to_bvh", "triangulation_baseline",
+    "adversarial_loss", "averaged_monocular", "baseline_cameras", "Batch", "build_pool", "CONFIGS", "contact_loss",
+    "contact_velocity_loss", "DataConfig", "Discriminator", "discriminator_loss", "ExperimentConfig", "Flex",
+    "flex_forward_kinematics", "FlexConfig", "FlexOutputs", "generator_loss", "load_flex", "load_models",
+    "local_rotations", "LossWeights", "make_batch", "make_sample", "MODELS", "motion_metrics", "MotionMetrics",
+    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "position_loss", "root_frame",
+    "root_loss", "RotationDiscriminator", "run_experiment", "SHIPPED_MODELS", "sign_continuous", "skeleton_loss",
+    "symmetric_bone_lengths", "TEST_CLIPS", "to_bvh", "train", "TRAIN_CLIPS", "train_models", "train_step",
+    "TrainConfig", "TrainState", "triangulation_baseline", "VALIDATION_CLIPS",
 ]

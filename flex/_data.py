@@ -47,7 +47,8 @@ from geometry import BODY25, FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_REST_DIRECTION
 from ._normalise import normalise_2d
 
 __all__ = [
-    "Batch", "DataConfig", "local_rotations", "make_batch", "make_sample", "root_frame", "symmetric_bone_lengths",
+    "Batch", "DataConfig", "local_rotations", "make_batch", "make_sample", "root_frame", "sign_continuous",
+    "symmetric_bone_lengths",
 ]
 
 _ROOT = H36M17.index("mid_hip")
@@ -305,10 +306,12 @@ def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray,
     return np.stack(points), np.stack(confidences), np.stack(exact)
 
 
-def _continuous(q: np.ndarray) -> np.ndarray:
-    """Flip quaternion signs along axis 0 (time) so that consecutive ones are in the same hemisphere."""
-    same = np.sum(q[1:] * q[:-1], axis=-1) >= 0
-    sign = np.cumprod(np.concatenate([np.ones_like(same[:1]), np.where(same, 1.0, -1.0)]), axis=0)
+def sign_continuous(q: Float[ArrayLike, "frames *b 4"]) -> Float[Array, "frames *b 4"]:
+    """Flip quaternion signs along axis 0 (time) so that consecutive ones are in the same hemisphere (the
+    rotations are unchanged; temporal differences of the result are small where the rotation changes slowly)."""
+    q = jnp.asarray(q)
+    same = jnp.sum(q[1:] * q[:-1], axis=-1) >= 0
+    sign = jnp.cumprod(jnp.concatenate([jnp.ones_like(same[:1], q.dtype), jnp.where(same, 1.0, -1.0)]), axis=0)
     return q * sign[..., None]
 
 
@@ -341,9 +344,9 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
         h36m[:, _FEET, 2] < lowest + config.contact_height)
     flex20 = np.asarray(geometry.flex20_from_h36m17(h36m))
     local = local_rotations(flex20, rest_pose)
-    rotations = _continuous(np.asarray(geometry.matrix_to_quaternion(local[:, np.asarray(FLEX20_ROTATING)])))
+    rotations = np.asarray(sign_continuous(geometry.matrix_to_quaternion(local[:, np.asarray(FLEX20_ROTATING)])))
     root_world = np.asarray(local[:, 0])
-    root_rotations = np.stack([_continuous(np.asarray(geometry.matrix_to_quaternion(cameras.R[k] @ root_world)))
+    root_rotations = np.stack([np.asarray(sign_continuous(geometry.matrix_to_quaternion(cameras.R[k] @ root_world)))
                                for k in range(config.views)])
     return Batch(
         points_2d=points, confidences=confidences, joints=camera_joints - camera_joints[:, :, _ROOT:_ROOT + 1],

@@ -3,7 +3,10 @@
 Each term is the mean over the batch (the paper's expectation) and over the entries it repeats over (views,
 frames, joints) of a squared Euclidean norm of the paper's natural vector: a joint's xyz for L_P, the skeleton's
 10 lengths for L_S, a scalar for L_R, a frame's 2 contacts for L_F, a foot's velocity for L_FC. Lengths are in
-metres. Readings of the paper, on purpose (spec ``flex_reference.md`` sections 4 and 8):
+units of the sample's scale ``alpha``, the mean of its 10 true bone lengths (about 0.23 m), as the official code
+normalises its 3D targets (spec section 5): in metres the squared position errors would be about 20 times
+smaller and the adversarial term, an order of magnitude larger than all of them, would outweigh them. Readings
+of the paper, on purpose (spec ``flex_reference.md`` sections 4 and 8):
 
 - L_P (Eq. 3) compares the 17 Human3.6M joints (the FLEX20 duplicates dropped: they repeat the root and the
   thorax), root-relative, in each view's camera frame with the root rotation kept.
@@ -56,21 +59,28 @@ def _squared_norm(v: Float[Array, "*b d"]) -> Float[Array, "*b"]:
     return jnp.sum(v * v, axis=-1)
 
 
+def _scaled(v: Float[Array, "batch *rest"], batch: Batch) -> Float[Array, "batch *rest"]:
+    """Lengths ``v`` (metres) in units of each sample's mean true bone length ``alpha``."""
+    alpha = jnp.mean(batch.bone_lengths, axis=-1).astype(v.dtype)
+    return v / alpha.reshape(-1, *(1,) * (v.ndim - 1))
+
+
 def position_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
-    """L_P (Eq. 3): mean squared distance (m^2) of the root-relative camera-frame H36M17 joints, all views."""
+    """L_P (Eq. 3): mean squared distance (alpha^2) of the root-relative camera-frame H36M17 joints, all views."""
     predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, H36M17)
-    return jnp.mean(_squared_norm(predicted - batch.joints.astype(predicted.dtype)))
+    return jnp.mean(_squared_norm(_scaled(predicted - batch.joints.astype(predicted.dtype), batch)))
 
 
 def skeleton_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
-    """L_S (Eq. 4): squared error of the 10 bone lengths (m^2), summed over the bones."""
-    return jnp.mean(_squared_norm(outputs.bone_lengths - batch.bone_lengths.astype(outputs.bone_lengths.dtype)))
+    """L_S (Eq. 4): squared error of the 10 bone lengths (alpha^2), summed over the bones."""
+    return jnp.mean(_squared_norm(
+        _scaled(outputs.bone_lengths - batch.bone_lengths.astype(outputs.bone_lengths.dtype), batch)))
 
 
 def root_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
-    """L_R (Eq. 6): squared error of the normalised root depth (m^2), all views and frames."""
+    """L_R (Eq. 6): squared error of the normalised root depth (alpha^2), all views and frames."""
     target = batch.root_position[..., 2].astype(outputs.root_depth.dtype)
-    return jnp.mean(jnp.square(outputs.root_depth - target))
+    return jnp.mean(jnp.square(_scaled(outputs.root_depth - target, batch)))
 
 
 def contact_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
@@ -79,12 +89,12 @@ def contact_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
 
 
 def contact_velocity_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
-    """L_FC (Eq. 8): ``f_i |Delta_t foot_i - Delta_t foot_i^gt|^2`` (m^2 per frame), ground-truth contacts ``f``."""
+    """L_FC (Eq. 8): ``f_i |Delta_t foot_i - Delta_t foot_i^gt|^2`` (alpha^2 per frame), ground-truth contacts ``f``."""
     feet = outputs.joints[..., _FEET, :]  # (B, K, T, 2, 3)
     true_feet = (batch.root_position[..., None, :] + geometry.flex20_from_h36m17(batch.joints)[..., _FEET, :])
     velocity = jnp.diff(feet, axis=2) - jnp.diff(true_feet.astype(feet.dtype), axis=2)
     contact = batch.contacts[:, None, 1:, :].astype(feet.dtype)  # (B, 1, T - 1, 2)
-    return jnp.mean(contact * _squared_norm(velocity))
+    return jnp.mean(contact * _squared_norm(_scaled(velocity, batch)))
 
 
 def adversarial_loss(outputs: FlexOutputs, discriminator: Discriminator) -> Float[Array, ""]:

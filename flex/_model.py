@@ -10,8 +10,9 @@ features ``V`` (``3J`` channels per view and frame). Then (Fig. 3, 14, 15):
   cross-view attention: per frame, a learned fusion token attends to itself and the K view features
   (multi-head attention over views) and only its output is kept: one fused feature per frame.
 - **E_Q**: parallel temporal convolutions ``stage2_kernels`` (pooled back to T, summed) -> a 1x1 shrink to,
-  per frame, the 14 shared joint quaternions (:data:`geometry.FLEX20_ROTATING`) and 2 foot contacts, and per
-  frame and view the root quaternion and the root depth.
+  per frame, the 14 shared joint quaternions (:data:`geometry.FLEX20_ROTATING`) and 2 foot contacts; and per
+  frame and view, from that view's features beside the fused one (:class:`RotationBranch`), the root rotation
+  (6D: its quaternion would have to jump somewhere as the heading goes round) and the root depth.
 - **F_S / E_S** (bone branch): per view a 1x1 expansion and ``bone_stages`` x sequential temporal convolutions
   ``bone_kernels`` (no padding) -> cross-view attention per frame -> max over time -> a 1x1 shrink to the 10
   symmetric bone lengths of :data:`geometry.FLEX20_BONES` (one skeleton per sequence).
@@ -54,6 +55,7 @@ import geometry
 import training
 from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, H36M17
 
+from . import _data
 from ._normalise import normalise_2d
 
 __all__ = [
@@ -69,6 +71,28 @@ _REFERENCE_BONES_M = (0.13, 0.44, 0.44, 0.23, 0.25, 0.12, 0.12, 0.15, 0.28, 0.25
 """Typical adult lengths of :data:`geometry.FLEX20_BONES` (metres, about Human3.6M's means). Only the origin of
 E_S's output, ``bones = reference * exp(raw)``, so that an untrained model already has a human-sized, positive
 skeleton; training moves it anywhere."""
+
+
+_FACING_CAMERA_6D = (1.0, 0.0, 0.0, 0.0, -1.0, 0.0)
+"""The root rotation of an upright person facing the camera, body (x left, y up, z forward) to OpenCV camera
+(x right, y down, z away), a half turn about x, as the 6D vector of its first two columns."""
+
+
+@functools.cache
+def _standing_rotations(rest_pose: str) -> np.ndarray:
+    """(14, 4) quaternions of :data:`geometry.FLEX20_ROTATING` that pose the rest skeleton standing: legs and
+    spine straight, shoulders sideways, arms hanging down (the origin of E_Q's joint rotations)."""
+    down = (0.0, -1.0, 0.0)
+    directions = np.array(FLEX20_REST_DIRECTIONS["tpose"])
+    for arm in ("l_elbow", "l_wrist", "r_elbow", "r_wrist"):
+        directions[FLEX20.index(arm)] = down
+    lengths = np.array([0.0 if b < 0 else _REFERENCE_BONES_M[b] for b in FLEX20_BONE_OF_JOINT])
+    standing = np.zeros((FLEX20.num_joints, 3))
+    for joint in FLEX20.topological_order[1:]:
+        standing[joint] = standing[FLEX20.parents[joint]] + lengths[joint] * directions[joint]
+    with jax.ensure_compile_time_eval():  # a constant, also when first needed inside a trace
+        local = _data.local_rotations(standing, rest_pose)[np.asarray(FLEX20_ROTATING)]
+        return np.asarray(geometry.matrix_to_quaternion(local))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -290,7 +314,13 @@ def _keys(key: jax.Array | None, count: int) -> list[jax.Array | None]:
 
 
 class RotationBranch(nnx.Module):
-    """F_Q and E_Q: normalised views ``(B, K, T, 3J)`` -> per frame ``(B, T, 4 x 14 + 2 + 5 K)`` raw outputs."""
+    """F_Q and E_Q: normalised views ``(B, K, T, 3J)`` -> raw outputs per frame ``(B, T, 4 x 14 + 2)`` (shared
+    rotations, contacts) and per view and frame ``(B, K, T, 7)`` (root rotation in 6D, depth).
+
+    The per-view outputs come from each view's own features (after the multi-view convolution, which has seen
+    its neighbours; for late fusion after E_Q's per-view convolutions) together with the frame's fused feature,
+    through one layer shared by the views: an attention-pooled feature is a weighted sum of the views' values
+    under one projection and cannot keep K orientations apart. Permuting the views cyclically permutes them."""
 
     def __init__(self, config: FlexConfig, *, rngs: nnx.Rngs) -> None:
         c = config.channels
@@ -304,24 +334,34 @@ class RotationBranch(nnx.Module):
         self.temporal = nnx.List([
             Block(nnx.Conv(c, c, (k,), padding="VALID", rngs=rngs), c, config, rngs=rngs)
             for k in config.stage2_kernels])
-        self.shrink = nnx.Linear(c, 4 * NUM_ROTATING + 2 + 5 * config.views, rngs=rngs)
+        # Zero-initialised, so that an untrained model predicts the standing pose of Flex.__call__ rather than
+        # random rotations around it.
+        self.shrink = nnx.Linear(c, 4 * NUM_ROTATING + 2, kernel_init=nnx.initializers.zeros, rngs=rngs)
+        self.view_head = nnx.Linear(2 * c, 7, kernel_init=nnx.initializers.zeros, rngs=rngs)
 
-    def __call__(self, x: Float[Array, "B K T F"], key: jax.Array | None) -> Float[Array, "B T O"]:
+    def __call__(self, x: Float[Array, "B K T F"], key: jax.Array | None
+                 ) -> tuple[Float[Array, "B T O"], Float[Array, "B K T 7"]]:
         frames, views = x.shape[2], x.shape[1]
         keys = _keys(key, 1 + len(self.multi_view) + len(self.temporal))
         x = jnp.swapaxes(self.expand(x, keys[0]), 1, 2)  # (B, T, K, C)
         pad = self.view_kernel // 2
         wrapped = jnp.take(x, np.arange(-pad, views + self.view_kernel - 1 - pad) % views, axis=2)
         x = sum(_pool_time(block(wrapped, k), frames) for block, k in zip(self.multi_view, keys[1:]))
-        late = self.config.fusion == "late"
-        if late:
-            x = jnp.swapaxes(x, 1, 2).reshape(-1, frames, x.shape[-1])  # (B K, T, C): E_Q per view
+
+        def temporal(x):
+            return sum(_pool_time(block(x, k), frames)
+                       for block, k in zip(self.temporal, keys[1 + len(self.multi_view):]))
+
+        if self.config.fusion == "late":
+            channels = x.shape[-1]
+            per_view = temporal(jnp.swapaxes(x, 1, 2).reshape(-1, frames, channels))  # (B K, T, C): E_Q per view
+            per_view = jnp.swapaxes(per_view.reshape(-1, views, frames, channels), 1, 2)  # (B, T, K, C)
+            fused = self.fusion(per_view)
         else:
-            x = self.fusion(x)  # (B, T, C)
-        x = sum(_pool_time(block(x, k), frames) for block, k in zip(self.temporal, keys[1 + len(self.multi_view):]))
-        if late:
-            x = self.fusion(jnp.swapaxes(x.reshape(-1, views, frames, x.shape[-1]), 1, 2))
-        return self.shrink(x)
+            per_view = x
+            fused = temporal(self.fusion(x))  # (B, T, C)
+        both = jnp.concatenate([per_view, jnp.broadcast_to(fused[:, :, None], per_view.shape)], axis=-1)
+        return self.shrink(fused), jnp.swapaxes(self.view_head(both), 1, 2)
 
 
 class BoneBranch(nnx.Module):
@@ -383,16 +423,22 @@ class Flex(nnx.Module):
         dtype = self.rotation_branch.shrink.kernel.dtype
         x = normalised.features.reshape(batch, views, frames, -1).astype(dtype)
         rotation_key, bone_key = _keys(key, 2)
-        raw = self.rotation_branch(x, rotation_key)
+        raw, per_view = self.rotation_branch(x, rotation_key)
         bone_lengths = self.bone_branch(x, bone_key)
 
-        identity = jnp.asarray([1.0, 0.0, 0.0, 0.0], raw.dtype).reshape(1, 1, 1, 4)
-        # Quaternions start at the identity (the rest pose) rather than at random rotations.
-        rotations = raw[..., : 4 * NUM_ROTATING].reshape(batch, frames, NUM_ROTATING, 4) + identity
+        # Quaternions are offsets from a person standing upright and facing the camera (as HMR starts from the
+        # mean parameters): from the rest pose (the totem's arms point up, the camera's y axis down) every
+        # real pose would be about a half turn away, where the position loss has no gradient.
+        rotations = raw[..., : 4 * NUM_ROTATING].reshape(batch, frames, NUM_ROTATING, 4) + jnp.asarray(
+            _standing_rotations(config.rest_pose), raw.dtype)[None, None]
         contacts = jax.nn.sigmoid(raw[..., 4 * NUM_ROTATING: 4 * NUM_ROTATING + 2])
-        per_view = jnp.swapaxes(raw[..., 4 * NUM_ROTATING + 2:].reshape(batch, frames, views, 5), 1, 2)
-        root_rotations = per_view[..., :4] + identity
-        depth = jax.nn.softplus(per_view[..., 4])
+        # The root rotation goes round every heading relative to a camera, a loop that no continuous map can
+        # follow with quaternions (q and -q, Zhou et al. 2019): it is predicted in the continuous 6D form.
+        root_matrices = geometry.rotation_6d_to_matrix(
+            per_view[..., :6] + jnp.asarray(_FACING_CAMERA_6D, raw.dtype).reshape(1, 1, 1, 6))
+        root_rotations = jnp.moveaxis(
+            _data.sign_continuous(jnp.moveaxis(geometry.matrix_to_quaternion(root_matrices), 2, 0)), 0, 2)
+        depth = jax.nn.softplus(per_view[..., 6])
 
         relative = flex_forward_kinematics(bone_lengths, rotations, root_rotations, config.rest_pose)
         # Outputs in FK's float, so that they describe its poses exactly.
@@ -410,9 +456,11 @@ class RotationDiscriminator(nnx.Module):
     """Independent discriminators D_j, one per joint (paper Sec. 3.1), vectorised over the joints.
 
     Each takes a joint's sequence of quaternion differences ``(T', 4)``: a temporal convolution
-    (``kernel``, 4 -> ``channels``) + ReLU -> a 1x1 convolution to one channel + ReLU -> adaptive average pool
-    to ``pooled`` frames -> a linear layer to one score -> sigmoid (the official ``rotation_D``, with weights of
-    its own per joint instead of channels mixing all joints)."""
+    (``kernel``, 4 -> ``channels``) + ReLU -> a 1x1 convolution to one channel + leaky ReLU (slope 0.2) ->
+    adaptive average pool to ``pooled`` frames -> a linear layer to one score -> sigmoid. This is the official
+    ``rotation_D`` with weights of its own per joint instead of channels mixing all joints, and a leaky second
+    activation: with a ReLU on the single channel, a D_j whose channel turns negative everywhere outputs the
+    constant sigmoid(bias) with no gradient to anything else. Trained that way every D_j sat at 0.5."""
 
     def __init__(self, joints: int, channels: int, kernel: int, pooled: int, *, rngs: nnx.Rngs) -> None:
         self.kernel = kernel
@@ -435,7 +483,7 @@ class RotationDiscriminator(nnx.Module):
         windows = windows.reshape(*windows.shape[:3], -1).astype(self.conv_in.dtype)
         hidden = jnp.einsum("ntji,jic->ntjc", windows, self.conv_in[...]) + self.conv_in_bias[...][None, None]
         score = jnp.einsum("ntjc,jc->ntj", jax.nn.relu(hidden), self.conv_out[...]) + self.conv_out_bias[...][None, None]
-        score = jax.nn.relu(score)
+        score = jax.nn.leaky_relu(score, 0.2)
         pooled = _pool_time(score, self.pooled)  # (N, pooled, J)
         logit = jnp.einsum("npj,jp->nj", pooled, self.head[...]) + self.head_bias[...][None]
         return jax.nn.sigmoid(logit).reshape(*batch, joints)

@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 import geometry
 from geometry import FLEX20, FLEX20_ROTATING, H36M17
 from flex import (
-    DataConfig, flex_forward_kinematics, local_rotations, make_batch, make_sample, normalise_2d,
+    DataConfig, flex_forward_kinematics, local_rotations, make_batch, make_sample, normalise_2d, sign_continuous,
     symmetric_bone_lengths,
 )
 
@@ -174,3 +174,13 @@ def test_flex20_skeleton_data():
     assert_array_equal(geometry.remap_joints(flex20, FLEX20, H36M17), x)
     for duplicate, original in geometry.FLEX20_DUPLICATE_OF.items():
         assert_array_equal(flex20[FLEX20.index(duplicate)], flex20[FLEX20.index(original)])
+
+
+def test_sign_continuous_keeps_the_rotations_and_removes_the_sign_jumps():
+    rng = np.random.default_rng(0)
+    steps = 0.05 * rng.normal(size=(40, 3, 3))
+    q = np.asarray(geometry.axis_angle_to_quaternion(np.cumsum(steps, axis=0)))  # slow motion (frames, 3, 4)
+    flipped = q * rng.choice([-1.0, 1.0], size=q.shape[:-1])[..., None]
+    fixed = np.asarray(sign_continuous(flipped))
+    assert np.all(np.sum(fixed[1:] * fixed[:-1], axis=-1) > 0.9)
+    assert_allclose(np.abs(np.sum(fixed * q, axis=-1)), 1.0, atol=1e-12)  # each +-q

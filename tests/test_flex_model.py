@@ -33,7 +33,12 @@ def batch():
 
 @pytest.fixture(scope="module")
 def model():
-    return Flex(CPU, rngs=nnx.Rngs(0))
+    """A model whose outputs depend on its input: the output layers are zero-initialised (an untrained model
+    predicts the standing pose), so they get random weights here."""
+    model = Flex(CPU, rngs=nnx.Rngs(0))
+    for seed, layer in enumerate((model.rotation_branch.shrink, model.rotation_branch.view_head)):
+        layer.kernel[...] = 0.1 * jax.random.normal(jax.random.key(seed), layer.kernel.shape, layer.kernel.dtype)
+    return model
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +72,7 @@ def test_paper_config_traces_with_the_paper_sizes():
     model = nnx.eval_shape(lambda: Flex(config, rngs=nnx.Rngs(0)))
     # The expansion maps 3J = 51 input channels to C = 1024; E_Q's shrink gives 4 x 14 + 2 + 5 K channels.
     assert model.rotation_branch.expand.layer.kernel.shape == (51, 1024)
-    assert model.rotation_branch.shrink.kernel.shape == (1024, 4 * 14 + 2 + 5 * 4)
+    assert model.rotation_branch.shrink.kernel.shape == (1024, 4 * 14 + 2)
     assert model.rotation_branch.multi_view[0].layer.kernel.shape == (5, 5, 1024, 1024)
     assert model.bone_branch.shrink.kernel.shape == (1024, len(FLEX20_BONES))
     assert parameter_count(model) > 20e6
@@ -150,6 +155,38 @@ def test_model_is_invariant_to_each_views_image_similarity(run, batch, outputs):
             assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=name)
 
 
+def test_untrained_model_predicts_a_person_standing_upright_and_facing_each_camera(batch):
+    outputs = Flex(CPU, rngs=nnx.Rngs(3))(batch.points_2d, batch.confidences)
+    pose = np.asarray(outputs.joints_relative)  # OpenCV camera frames: x right, y down, z away
+    j = FLEX20.index
+    assert np.all(pose[..., j("head"), 1] < -0.5) and np.all(pose[..., j("r_ankle"), 1] > 0.7)
+    assert np.all(pose[..., j("l_hip"), 0] > 0.05) and np.all(pose[..., j("r_hip"), 0] < -0.05)  # facing the camera
+    for side in ("l", "r"):  # shoulders sideways, arms hanging
+        assert np.all(np.abs(pose[..., j(f"{side}_shoulder"), 0]) > 0.1)
+        assert np.all(pose[..., j(f"{side}_wrist"), 1] > pose[..., j(f"{side}_elbow"), 1] + 0.1)
+        assert np.all(pose[..., j(f"{side}_elbow"), 1] > pose[..., j(f"{side}_shoulder"), 1] + 0.1)
+
+
+def test_per_view_outputs_follow_their_views(run, batch, outputs):
+    """Each view's root rotation and depth come from its own features: a cyclic shift of the input views (the
+    multi-view convolution is circular) shifts the per-view outputs with it and leaves the shared ones."""
+    order = np.roll(np.arange(CPU.views), 1)
+    shifted = run(batch.points_2d[:, order], batch.confidences[:, order])
+    assert np.abs(np.asarray(outputs.root_rotations)[:, 1:] - np.asarray(outputs.root_rotations)[:, :1]).max() > 1e-2
+    for name in ("root_rotations", "root_depth", "joints_relative"):
+        assert_allclose(getattr(shifted, name), np.asarray(getattr(outputs, name))[:, order], atol=1e-5, err_msg=name)
+    for name in ("rotations", "bone_lengths", "contacts"):
+        assert_allclose(getattr(shifted, name), getattr(outputs, name), atol=1e-5, err_msg=name)
+
+
+def test_discriminator_gets_gradients_on_every_joint(discriminator, batch, outputs):
+    grads = nnx.grad(lambda d: discriminator_loss(d, outputs, batch))(discriminator)
+    for module in (grads.joints, grads.root):
+        for name in ("conv_in", "conv_out", "head"):
+            per_joint = np.abs(np.asarray(getattr(module, name)[...])).reshape(getattr(module, name).shape[0], -1)
+            assert np.all(per_joint.max(axis=1) > 0), name
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
@@ -196,7 +233,22 @@ def test_losses_are_finite_and_zero_where_the_prediction_is_exact(outputs, batch
                              root_depth=jnp.asarray(batch.root_position[..., 2]))
     _, exact_terms = generator_loss(exact, batch, discriminator)
     assert float(exact_terms["skeleton"]) == 0.0 and float(exact_terms["root"]) == 0.0
-    assert float(exact_terms["position"]) < 1e-4  # m^2: millimetres
+    assert float(exact_terms["position"]) < 1e-3  # alpha^2: millimetres
+
+
+def test_length_losses_are_in_units_of_the_mean_bone_length(outputs, batch, discriminator):
+    """L_P, L_S, L_R and L_FC measure lengths in units of the sample's mean bone length: scaling the whole scene
+    (prediction and ground truth) leaves them unchanged."""
+    _, terms = generator_loss(outputs, batch, discriminator)
+    c = 1.7
+    scaled_outputs = outputs._replace(joints_relative=c * outputs.joints_relative, joints=c * outputs.joints,
+                                      bone_lengths=c * outputs.bone_lengths, root_depth=c * outputs.root_depth)
+    scaled_batch = batch._replace(joints=c * batch.joints, bone_lengths=c * batch.bone_lengths,
+                                  root_position=c * batch.root_position)
+    _, scaled = generator_loss(scaled_outputs, scaled_batch, discriminator)
+    for name in ("position", "skeleton", "root", "contact_velocity"):
+        assert float(terms[name]) > 0, name
+        assert_allclose(scaled[name], terms[name], rtol=1e-5, err_msg=name)  # bones are float32
 
 
 ADVERSARIAL_ONLY = LossWeights(position=0.0, skeleton=0.0, adversarial=1.0, root=0.0, contact=0.0,

@@ -1,0 +1,299 @@
+"""FLEX's synthetic experiment: held-out CMU clips, FLEX against camera-dependent triangulation (paper Tables 1,
+3 and 5) in the static and the dynamic camera setting.
+
+Test data: ``sequences`` samples per camera motion (:func:`~flex.make_batch`, seeds from ``seed``) of the
+held-out :data:`~flex.TEST_CLIPS`, 4 views, ``frames`` frames, the default 2D detector model; for the
+"ground-truth 2D" rows the same samples (same motion windows and cameras) with :data:`mocap.PERFECT_DETECTOR`.
+Every method is scored by :func:`~flex.motion_metrics` (MPJPE protocol #1 over the 17 joints, acceleration error,
+MBLS) against the same camera-frame ground truth.
+
+Methods:
+
+- FLEX (4 views, early fusion): the 2D input only, no calibration.
+- DLT and Structural Triangulation (:func:`~flex.triangulation_baseline`) with the exact extrinsics, extrinsics
+  perturbed by each relative scale in ``perturbations`` (Table 1's protocol, one draw per sequence and view), and,
+  for moving cameras, the stale calibration of the first frame.
+- Ablations (Table 5): FLEX models trained with 1, 2 and 3 views, each given the first views of the same samples;
+  ground-truth versus detected 2D; fusion: averaged monocular (:func:`averaged_monocular`: the 1-view model on every
+  view, its shared rotations and bones averaged over the views), late fusion and FLEX's early fusion.
+
+The models (:data:`MODELS`) are read from ``model_dir`` (default: the shipped ``flex/assets``) or trained by
+:func:`train_models`, which is how the shipped ones were made.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import mocap
+from geometry import FLEX20, H36M17
+
+from ._baselines import motion_metrics, triangulation_baseline
+from ._data import Batch, DataConfig, make_batch
+from ._model import CONFIGS, Flex, flex_forward_kinematics
+from ._train import TEST_CLIPS, TrainConfig, load_flex, train
+
+__all__ = ["ExperimentConfig", "MODELS", "SHIPPED_MODELS", "averaged_monocular", "load_models", "run_experiment",
+           "train_models"]
+
+SHIPPED_MODELS = Path(__file__).parent / "assets"
+MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
+    "flex_4views": (4, "early"),
+    "flex_3views": (3, "early"),
+    "flex_2views": (2, "early"),
+    "flex_1view": (1, "early"),
+    "late_fusion_4views": (4, "late"),
+}
+"""The experiment's models: name -> (views, fusion), each the ``"small"`` config otherwise."""
+_MAIN = "flex_4views"
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentConfig:
+    """Everything the experiment's numbers depend on besides the models (written to ``results.json``)."""
+
+    seed: int = 0
+    sequences: int = 16
+    """Test samples per camera motion (static and dynamic), drawn from :data:`~flex.TEST_CLIPS`."""
+    frames: int = 64
+    clips: tuple[str, ...] = TEST_CLIPS
+    perturbations: tuple[float, ...] = (0.03, 0.04)
+    """Relative standard deviations of the perturbed extrinsics (Table 1: 3 % and 4 %)."""
+    n_steps: int = 3
+    """SCA steps of Structural Triangulation."""
+    plot_views: tuple[int, ...] = (0, 1)
+    plot_frames: int = 4
+    """Frames (evenly spaced) of the first dynamic sample drawn in ``skeletons.png``."""
+
+
+def _train_config(name: str, steps: int, seed: int, cache_dir: Path) -> TrainConfig:
+    views, fusion = MODELS[name]
+    base = TrainConfig()
+    return TrainConfig(
+        model=dataclasses.replace(CONFIGS["small"], views=views, fusion=fusion), steps=steps, seed=seed,
+        cache_dir=str(cache_dir),
+        data=dataclasses.replace(base.data, views=views),
+        validation_data=dataclasses.replace(base.validation_data, views=views))
+
+
+def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple[str, ...] = tuple(MODELS),
+                 log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> dict[str, Flex]:
+    """Train :data:`MODELS` (``names``) in ``workdir/<name>`` for ``steps`` steps each, resuming a run that
+    has checkpoints; a finished model folder ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships.
+    The sample pools are cached once for all models in ``workdir/data_cache``."""
+    models = {}
+    for name in names:
+        run = Path(workdir) / name
+        config = _train_config(name, steps, seed, Path(workdir) / "data_cache")
+        done = (run / "model" / "state.npz").is_file()
+        models[name] = load_flex(run / "model") if done else train(
+            config, run, resume=(run / "checkpoints").is_dir(), progress=progress,
+            log=lambda record, name=name: log({"model": name, **record}))
+    return models
+
+
+def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
+    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ones are left out."""
+    return {name: load_flex(Path(model_dir) / name) for name in MODELS
+            if (Path(model_dir) / name / "state.npz").is_file()}
+
+
+def averaged_monocular(model: Flex, batch: Batch) -> jax.Array:
+    """Table 5c's averaged monocular fusion: a 1-view ``model`` runs on each view alone; the views' shared joint
+    rotations (sign-aligned quaternion mean) and bone lengths are averaged, each view keeps its own root rotation.
+    Returns the FLEX20 camera-frame poses ``(batch, views, frames, 20, 3)`` (metres, root-relative)."""
+    if model.config.views != 1:
+        raise ValueError(f"averaged monocular fusion needs a 1-view model, got {model.config.views} views")
+    views = batch.points_2d.shape[1]
+    outputs = [model(batch.points_2d[:, k:k + 1], batch.confidences[:, k:k + 1]) for k in range(views)]
+    rotations = jnp.stack([o.rotations for o in outputs], axis=1)  # (B, K, T, 14, 4)
+    sign = jnp.where(jnp.sum(rotations * rotations[:, :1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    mean_rotation = jnp.mean(sign * rotations, axis=1)
+    bones = jnp.mean(jnp.stack([o.bone_lengths for o in outputs], axis=1), axis=1)
+    roots = jnp.concatenate([o.root_rotations for o in outputs], axis=1)
+    return flex_forward_kinematics(bones, mean_rotation, roots, model.config.rest_pose)
+
+
+def _metrics(pred, gt, skeleton) -> dict[str, float]:
+    m = motion_metrics(pred, gt, skeleton)
+    return {"mpjpe_mm": float(m.mpjpe), "acceleration_error_mm": float(m.acceleration_error),
+            "mbls_mm": float(m.mbls)}
+
+
+def _test_batches(config: ExperimentConfig) -> dict[tuple[str, str], Batch]:
+    """(camera motion, "detected" or "gt") -> the test batch (same motion and cameras for both 2D sources)."""
+    batches = {}
+    for index, motion in enumerate(("static", "dynamic")):
+        key = jax.random.fold_in(jax.random.key(config.seed), index)
+        data = DataConfig(views=4, frames=config.frames, clips=config.clips, camera_motion=motion)
+        batches[motion, "detected"] = make_batch(key, data, config.sequences)
+        batches[motion, "gt"] = make_batch(key, dataclasses.replace(data, detector=mocap.PERFECT_DETECTOR),
+                                           config.sequences)
+    return batches
+
+
+def _first_views(batch: Batch, views: int) -> Batch:
+    def cut(x):
+        return x[:, :views] if x.ndim >= 2 and x.shape[1] == 4 else x
+    return batch._replace(points_2d=batch.points_2d[:, :views], confidences=batch.confidences[:, :views],
+                          joints=batch.joints[:, :views], root_position=batch.root_position[:, :views],
+                          root_rotations=batch.root_rotations[:, :views], cameras=jax.tree.map(cut, batch.cameras))
+
+
+def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str | Path,
+                   log: Callable[[dict], None] = lambda record: None) -> dict:
+    """Evaluate every method (module docstring) and write ``out/results.json``, ``out/results.md`` and the PNGs;
+    returns the results. ``models`` must hold the main model ``flex_4views``; an ablation whose model is absent is
+    skipped and listed in the results as ``missing_models``."""
+    if _MAIN not in models:
+        raise ValueError(f"models lacks the main model {_MAIN!r} (has {sorted(models)})")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    batches = _test_batches(config)
+    rows, ablations, predictions = [], [], {}
+
+    def add(table: list, record: dict) -> None:
+        table.append(record)
+        log(record)
+
+    for motion in ("static", "dynamic"):
+        for source in ("detected", "gt"):
+            batch = batches[motion, source]
+            main = models[_MAIN](batch.points_2d, batch.confidences).joints_relative
+            predictions[motion, source, "FLEX"] = main
+            add(rows, {"camera_motion": motion, "input_2d": source, "method": "FLEX (4 views)",
+                       "calibration": "none", **_metrics(main, batch.joints, FLEX20)})
+            calibrations = [("exact", "exact", 0.0)] + [
+                ("perturbed", f"perturbed {100 * s:g} %", s) for s in config.perturbations]
+            if motion == "dynamic":
+                calibrations.append(("static", "stale (first frame)", 0.0))
+            for method, label in (("dlt", "DLT"), ("structural", "Structural Triangulation")):
+                for index, (calibration, name, scale) in enumerate(calibrations):
+                    key = jax.random.fold_in(jax.random.key(config.seed + 1), index)
+                    pred = triangulation_baseline(batch, method, calibration, key if scale else None, scale=scale,
+                                                  n_steps=config.n_steps)
+                    predictions[motion, source, f"{label}, {name}"] = pred
+                    add(rows, {"camera_motion": motion, "input_2d": source, "method": label, "calibration": name,
+                               **_metrics(pred, batch.joints, H36M17)})
+        batch = batches[motion, "detected"]
+        for name, (views, fusion) in MODELS.items():
+            if fusion == "late" or name not in models:
+                continue
+            view_batch = _first_views(batch, views)
+            pred = models[name](view_batch.points_2d, view_batch.confidences).joints_relative
+            add(ablations, {"camera_motion": motion, "ablation": "views", "variant": f"{views} view(s)",
+                            **_metrics(pred, view_batch.joints, FLEX20)})
+        fusions = [("averaged monocular", "flex_1view", lambda: averaged_monocular(models["flex_1view"], batch)),
+                   ("late fusion", "late_fusion_4views",
+                    lambda: models["late_fusion_4views"](batch.points_2d, batch.confidences).joints_relative),
+                   ("early fusion (FLEX)", _MAIN, lambda: predictions[motion, "detected", "FLEX"])]
+        for variant, pred in ((variant, predict()) for variant, name, predict in fusions if name in models):
+            add(ablations, {"camera_motion": motion, "ablation": "fusion", "variant": variant,
+                            **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else H36M17)})
+
+    results = {
+        "config": dataclasses.asdict(config),
+        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                    "jax": jax.__version__, "backend": jax.default_backend()},
+        "main": rows, "ablations": ablations, "missing_models": sorted(set(MODELS) - set(models)),
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+    (out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    (out / "results.md").write_text(_markdown(results))
+    _plot_skeletons(config, batches["dynamic", "detected"], predictions, out / "skeletons.png")
+    _plot_bars(results, out / "mpjpe.png")
+    return results
+
+
+def _markdown(results: dict) -> str:
+    lines = ["# FLEX on held-out synthetic CMU clips", "",
+             f"Test clips {', '.join(results['config']['clips'])}; {results['config']['sequences']} sequences of "
+             f"{results['config']['frames']} frames per camera motion, 4 views. MPJPE protocol #1 (17 joints, "
+             "root-relative, camera frame), acceleration error (mm/frame^2), MBLS (bone-length std over time, mm).",
+             ""]
+    for source, title in (("detected", "2D detector model"), ("gt", "ground-truth 2D")):
+        lines += [f"## Methods, {title}", "", "| cameras | method | calibration | MPJPE mm | accel. err. | MBLS mm |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {r['camera_motion']} | {r['method']} | {r['calibration']} | {r['mpjpe_mm']:.1f} | "
+                  f"{r['acceleration_error_mm']:.2f} | {r['mbls_mm']:.1f} |"
+                  for r in results["main"] if r["input_2d"] == source]
+        lines.append("")
+    lines += ["## Ablations (Table 5), 2D detector model", "",
+              "| cameras | ablation | variant | MPJPE mm | accel. err. | MBLS mm |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['camera_motion']} | {r['ablation']} | {r['variant']} | {r['mpjpe_mm']:.1f} | "
+              f"{r['acceleration_error_mm']:.2f} | {r['mbls_mm']:.1f} |" for r in results["ablations"]]
+    if results["missing_models"]:
+        lines += ["", f"Not evaluated (model absent): {', '.join(results['missing_models'])}."]
+    machine = results["machine"]
+    lines += ["", f"Machine: {machine['platform']} ({machine['processor']}), jax {machine['jax']} "
+              f"({machine['backend']}); {results['seconds']} s.", ""]
+    return "\n".join(lines)
+
+
+def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, path: Path) -> None:
+    """Ground truth, FLEX and Structural Triangulation with the stale calibration, first dynamic sample,
+    front view of each camera frame (x right, y down)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from geometry import remap_joints
+
+    frames = np.linspace(0, config.frames - 1, config.plot_frames).round().astype(int)
+    poses = {"ground truth": (np.asarray(batch.joints[0]), "black"),
+             "FLEX": (np.asarray(remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17)),
+                      "tab:red"),
+             "ST, stale calibration": (np.asarray(
+                 predictions["dynamic", "detected", "Structural Triangulation, stale (first frame)"][0]), "tab:blue")}
+    figure, axes = plt.subplots(len(config.plot_views), len(frames),
+                                figsize=(2.6 * len(frames), 3.2 * len(config.plot_views)), squeeze=False)
+    for row, view in enumerate(config.plot_views):
+        for column, frame in enumerate(frames):
+            ax = axes[row, column]
+            for label, (joints, colour) in poses.items():
+                pose = joints[view, frame]
+                for joint, parent in enumerate(H36M17.parents):
+                    if parent >= 0:
+                        ax.plot(pose[[joint, parent], 0], -pose[[joint, parent], 1], color=colour, lw=1.5,
+                                label=label if joint == 1 else None)
+            ax.set_aspect("equal")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_title(f"view {view}, frame {frame}", fontsize=9)
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    figure.suptitle("Moving cameras, held-out clip: camera-frame poses (root-relative)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def _plot_bars(results: dict, path: Path) -> None:
+    """MPJPE of every method and calibration, static and moving cameras, detected 2D."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for ax, motion in zip(axes, ("static", "dynamic")):
+        rows = [r for r in results["main"] if r["camera_motion"] == motion and r["input_2d"] == "detected"]
+        labels = [r["method"].replace("Structural Triangulation", "ST") + ("" if r["calibration"] == "none" else
+                                                                          f"\n{r['calibration']}") for r in rows]
+        colours = ["tab:red" if r["calibration"] == "none" else "tab:gray" for r in rows]
+        ax.bar(range(len(rows)), [r["mpjpe_mm"] for r in rows], color=colours)
+        ax.set_xticks(range(len(rows)), labels, rotation=60, ha="right", fontsize=7)
+        ax.set_title(f"{motion} cameras")
+    axes[0].set_ylabel("MPJPE protocol #1 (mm)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)

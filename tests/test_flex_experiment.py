@@ -1,0 +1,84 @@
+"""FLEX's experiment (flex/_experiment.py, experiments/flex_synthetic.py) on tiny untrained models."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+from flax import nnx
+from numpy.testing import assert_allclose
+
+import training
+from experiments import flex_synthetic
+from flex import CONFIGS, MODELS, DataConfig, ExperimentConfig, Flex, averaged_monocular, make_batch
+
+FRAMES = 24
+
+
+def tiny(views: int, fusion: str = "early", seed: int = 0) -> Flex:
+    model = Flex(dataclasses.replace(CONFIGS["cpu"], views=views, fusion=fusion), rngs=nnx.Rngs(seed))
+    for layer in (model.rotation_branch.shrink, model.rotation_branch.view_head):  # zero-initialised
+        layer.kernel[...] = 0.1 * jax.random.normal(jax.random.key(seed), layer.kernel.shape, layer.kernel.dtype)
+    return model
+
+
+@pytest.fixture(scope="module")
+def batch():
+    return make_batch(jax.random.key(0), DataConfig(views=4, frames=FRAMES, camera_motion="dynamic"), 2)
+
+
+def test_averaged_monocular_of_identical_views_is_the_monocular_prediction(batch):
+    model = tiny(1)
+    same = batch._replace(points_2d=np.repeat(batch.points_2d[:, :1], 3, axis=1),
+                          confidences=np.repeat(batch.confidences[:, :1], 3, axis=1))
+    fused = averaged_monocular(model, same)
+    alone = model(batch.points_2d[:, :1], batch.confidences[:, :1]).joints_relative
+    assert fused.shape == (2, 3, FRAMES, 20, 3)
+    for view in range(3):
+        assert_allclose(fused[:, view], alone[:, 0], atol=1e-6)
+    differs = averaged_monocular(model, batch)
+    assert np.abs(np.asarray(differs[:, 1]) - np.asarray(alone[:, 0])).max() > 1e-3
+    with pytest.raises(ValueError, match="1-view model"):
+        averaged_monocular(tiny(2), batch)
+
+
+@pytest.mark.slow
+def test_the_experiment_writes_every_table_and_plot(tmp_path):
+    """The command line on saved tiny models: every method, calibration and ablation is scored, finite."""
+    model_dir = tmp_path / "models"
+    for seed, (name, (views, fusion)) in enumerate(MODELS.items()):
+        model = tiny(views, fusion, seed)
+        training.save_model(model_dir / name, model.config, nnx.state(model))
+    out = tmp_path / "out"
+    flex_synthetic.main(["--out", str(out), "--model-dir", str(model_dir), "--sequences", "2", "--frames",
+                         str(FRAMES)])
+    results = json.loads((out / "results.json").read_text())
+    assert results["config"]["sequences"] == 2
+    main = {(r["camera_motion"], r["input_2d"], r["method"], r["calibration"]) for r in results["main"]}
+    for motion in ("static", "dynamic"):
+        for source in ("detected", "gt"):
+            assert (motion, source, "FLEX (4 views)", "none") in main
+            for method in ("DLT", "Structural Triangulation"):
+                for calibration in ("exact", "perturbed 3 %", "perturbed 4 %"):
+                    assert (motion, source, method, calibration) in main
+            assert ((motion, source, "DLT", "stale (first frame)") in main) == (motion == "dynamic")
+    variants = [(r["camera_motion"], r["variant"]) for r in results["ablations"]]
+    assert len(variants) == 2 * 7 and ("dynamic", "averaged monocular") in variants
+    for row in results["main"] + results["ablations"]:
+        assert all(np.isfinite(row[k]) and row[k] >= 0 for k in ("mpjpe_mm", "acceleration_error_mm", "mbls_mm"))
+    exact_gt = [r for r in results["main"] if r["input_2d"] == "gt" and r["calibration"] == "exact"]
+    assert all(r["mpjpe_mm"] < 5 for r in exact_gt)  # exact 2D and cameras: triangulation is exact
+    assert "Structural Triangulation" in (out / "results.md").read_text()
+    for name in ("skeletons.png", "mpjpe.png", "log.jsonl"):
+        assert (out / name).stat().st_size > 0
+    assert len((out / "log.jsonl").read_text().splitlines()) == len(results["main"]) + len(results["ablations"])
+
+
+def test_help_explains_every_option(capsys):
+    with pytest.raises(SystemExit):
+        flex_synthetic.main(["--help"])
+    text = capsys.readouterr().out
+    for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames"):
+        assert option in text
+    assert ExperimentConfig().sequences == 16
