@@ -21,6 +21,7 @@ from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
 from ._experiment import averaged_monocular as averaged_monocular
 from ._experiment import load_models as load_models
+from ._experiment import plot_camera_poses as plot_camera_poses
 from ._experiment import run_experiment as run_experiment
 from ._experiment import train_models as train_models
 from ._experiment import ExperimentConfig as ExperimentConfig
@@ -62,8 +63,8 @@ __all__ = [
     "contact_velocity_loss", "DataConfig", "Discriminator", "discriminator_loss", "ExperimentConfig", "Flex",
     "flex_forward_kinematics", "FlexConfig", "FlexOutputs", "generator_loss", "load_flex", "load_models",
     "local_rotations", "LossWeights", "make_batch", "make_sample", "MODELS", "motion_metrics", "MotionMetrics",
-    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "position_loss", "root_frame",
-    "root_loss", "RotationDiscriminator", "run_experiment", "SHIPPED_MODELS", "sign_continuous", "skeleton_loss",
-    "symmetric_bone_lengths", "TEST_CLIPS", "to_bvh", "train", "TRAIN_CLIPS", "train_models", "train_step",
-    "TrainConfig", "TrainState", "triangulation_baseline", "VALIDATION_CLIPS",
+    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "plot_camera_poses", "position_loss",
+    "root_frame", "root_loss", "RotationDiscriminator", "run_experiment", "SHIPPED_MODELS", "sign_continuous",
+    "skeleton_loss", "symmetric_bone_lengths", "TEST_CLIPS", "to_bvh", "train", "TRAIN_CLIPS", "train_models",
+    "train_step", "TrainConfig", "TrainState", "triangulation_baseline", "VALIDATION_CLIPS",
 ]

@@ -34,6 +34,7 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike
 
 import mocap
 from geometry import FLEX20, H36M17
@@ -43,8 +44,8 @@ from ._data import Batch, DataConfig, make_batch
 from ._model import CONFIGS, Flex, flex_forward_kinematics
 from ._train import TEST_CLIPS, TrainConfig, load_flex, train
 
-__all__ = ["ExperimentConfig", "MODELS", "SHIPPED_MODELS", "averaged_monocular", "load_models", "run_experiment",
-           "train_models"]
+__all__ = ["ExperimentConfig", "MODELS", "SHIPPED_MODELS", "averaged_monocular", "load_models", "plot_camera_poses",
+           "run_experiment", "train_models"]
 
 SHIPPED_MODELS = Path(__file__).parent / "assets"
 MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
@@ -103,7 +104,10 @@ def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple
 
 
 def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
-    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ones are left out."""
+    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ablation models are left
+    out, an absent main model is an error."""
+    if not (Path(model_dir) / _MAIN / "state.npz").is_file():
+        raise FileNotFoundError(f"{model_dir} has no saved main model {_MAIN}/ (config.json, state.npz)")
     return {name: load_flex(Path(model_dir) / name) for name in MODELS
             if (Path(model_dir) / name / "state.npz").is_file()}
 
@@ -241,28 +245,19 @@ def _markdown(results: dict) -> str:
     return "\n".join(lines)
 
 
-def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, path: Path) -> None:
-    """Ground truth, FLEX and Structural Triangulation with the stale calibration, first dynamic sample,
-    front view of each camera frame (x right, y down)."""
-    import matplotlib
-    matplotlib.use("Agg")
+def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int, ...], frames: ArrayLike,
+                      title: str = ""):
+    """A matplotlib figure of camera-frame poses, front view (x right, y up on the page): one row per view, one
+    column per frame. ``poses`` maps a label to ``(H36M17 joints (views, frames, 17, 3), colour)``."""
     import matplotlib.pyplot as plt
 
-    from geometry import remap_joints
-
-    frames = np.linspace(0, config.frames - 1, config.plot_frames).round().astype(int)
-    poses = {"ground truth": (np.asarray(batch.joints[0]), "black"),
-             "FLEX": (np.asarray(remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17)),
-                      "tab:red"),
-             "ST, stale calibration": (np.asarray(
-                 predictions["dynamic", "detected", "Structural Triangulation, stale (first frame)"][0]), "tab:blue")}
-    figure, axes = plt.subplots(len(config.plot_views), len(frames),
-                                figsize=(2.6 * len(frames), 3.2 * len(config.plot_views)), squeeze=False)
-    for row, view in enumerate(config.plot_views):
+    frames = np.asarray(frames)
+    figure, axes = plt.subplots(len(views), len(frames), figsize=(2.6 * len(frames), 3.2 * len(views)), squeeze=False)
+    for row, view in enumerate(views):
         for column, frame in enumerate(frames):
             ax = axes[row, column]
             for label, (joints, colour) in poses.items():
-                pose = joints[view, frame]
+                pose = np.asarray(joints)[view, frame]
                 for joint, parent in enumerate(H36M17.parents):
                     if parent >= 0:
                         ax.plot(pose[[joint, parent], 0], -pose[[joint, parent], 1], color=colour, lw=1.5,
@@ -272,8 +267,27 @@ def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, p
             ax.set_yticks([])
             ax.set_title(f"view {view}, frame {frame}", fontsize=9)
     axes[0, 0].legend(fontsize=7, loc="lower left")
-    figure.suptitle("Moving cameras, held-out clip: camera-frame poses (root-relative)")
+    if title:
+        figure.suptitle(title)
     figure.tight_layout()
+    return figure
+
+
+def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, path: Path) -> None:
+    """Ground truth, FLEX and Structural Triangulation with the stale calibration, first dynamic sample."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from geometry import remap_joints
+
+    poses = {"ground truth": (batch.joints[0], "black"),
+             "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17), "tab:red"),
+             "ST, stale calibration": (
+                 predictions["dynamic", "detected", "Structural Triangulation, stale (first frame)"][0], "tab:blue")}
+    frames = np.linspace(0, config.frames - 1, config.plot_frames).round().astype(int)
+    figure = plot_camera_poses(poses, config.plot_views, frames,
+                               "Moving cameras, held-out clip: camera-frame poses (root-relative)")
     figure.savefig(path, dpi=110)
     plt.close(figure)
 

@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 
 import training
 from experiments import flex_synthetic
-from flex import CONFIGS, MODELS, DataConfig, ExperimentConfig, Flex, averaged_monocular, make_batch
+from flex import CONFIGS, MODELS, DataConfig, ExperimentConfig, Flex, averaged_monocular, load_models, make_batch
 
 FRAMES = 24
 
@@ -82,3 +82,8 @@ def test_help_explains_every_option(capsys):
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames"):
         assert option in text
     assert ExperimentConfig().sequences == 16
+
+
+def test_a_model_folder_without_the_main_model_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match=f"{tmp_path} has no saved main model flex_4views"):
+        load_models(tmp_path)
