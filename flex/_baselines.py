@@ -12,12 +12,12 @@ Methods, both weighting each view by the detector's confidence (0 for a missed j
 - ``"dlt"``: the confidence-weighted DLT per joint and frame (:func:`geometry.triangulate`, rows multiplied by
   the confidence, not normalised: the algebraic triangulation of Iskakov et al.).
 - ``"structural"``: Structural Triangulation (:func:`structri.structural_triangulation`, SCA with ``n_steps``).
-  Its bone lengths are estimated from the sequence itself (:func:`structri.estimate_bone_lengths`, the mean LS
-  bone lengths, left and right averaged) through the same calibration: the true lengths are not available at
-  test time, and a wrong calibration distorts the estimate as it distorts the poses, so the baseline stays
-  honest. ``estimate_bone_lengths`` takes one rig for the sequence, so it runs per frame and its per-frame
-  means are averaged over the frames it could use, which is its sequence mean (the frames it skips give
-  all-zero lengths).
+  Its bone lengths are estimated from the sequence itself through the same calibration: the true lengths are not
+  available at test time, and a wrong calibration distorts the estimate as it distorts the poses, so the baseline
+  stays honest. Each frame gives LS bone lengths (:func:`structri.estimate_bone_lengths` of that frame alone, left
+  and right averaged) and each bone takes their median over the frames that could be used. The paper's ST* takes
+  the mean over hand-picked T-pose frames; over all frames of detected 2D, the few frames with a gross detector
+  outlier pull a mean far off and the SCA then enforces that wrong length on every frame; the median ignores them.
 
 Calibrations (:func:`baseline_cameras`): ``"exact"`` (every frame's true cameras), ``"perturbed"``
 (:func:`geometry.perturb_extrinsics_relative`: each extrinsic parameter (rotation vector, translation) times
@@ -142,13 +142,13 @@ def _structural(
     P: Float[Array, "frames views 3 4"], points: Float[Array, "frames views 17 2"],
     weights: Float[Array, "frames views 17"], n_steps: int,
 ) -> tuple[Float[Array, "frames 17 3"], Bool[Array, "frames 17"]]:
-    """ST + SCA of one sequence with its own estimated bone lengths, world metres, and the joints seen in two views."""
+    """ST + SCA of one sequence with its own (median) bone lengths, world metres, and the joints seen in two views."""
     per_frame = jax.vmap(lambda P_t, x_t, w_t: structri.estimate_bone_lengths(x_t[None], P_t, H36M17, w_t[None]))(
         P, points, weights)
     # A frame estimate_bone_lengths cannot use gives zeros. When no frame is usable, every frame has an undetermined
     # joint and ST returns LS, so the zero lengths are never applied.
     used = jnp.all(per_frame > 0, axis=-1)
-    lengths = jnp.sum(jnp.where(used[:, None], per_frame, 0.0), axis=0) / jnp.maximum(jnp.sum(used), 1)
+    lengths = jnp.nan_to_num(jnp.nanmedian(jnp.where(used[:, None], per_frame, jnp.nan), axis=0), nan=0.0)
     # Per frame (ST is per frame anyway): structri's projection_matrices is annotated for one rig, so per-frame
     # projection matrices fail the runtime shape check although the solver supports them.
     pose = jax.vmap(lambda P_t, x_t, w_t: structri.structural_triangulation(x_t, P_t, lengths, H36M17, w_t, n_steps)

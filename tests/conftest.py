@@ -4,6 +4,7 @@
 initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_regression.py``).
 """
 
+import gc
 import os
 from pathlib import Path
 
@@ -33,3 +34,15 @@ def data_root(request) -> Path:
     if not (root / "shelf").is_dir():
         pytest.skip(f"real data not found at {root} (pass --data-root or set MVMOCAP_DATA_ROOT)")
     return root
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_code():
+    """Drop every compiled program after each test module.
+
+    Each compiled CPU executable keeps its own memory mappings alive; one process running the whole suite
+    crossed the kernel's ``vm.max_map_count`` (65530 by default) and XLA then segfaulted while compiling.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
