@@ -18,6 +18,8 @@ Methods, both weighting each view by the detector's confidence (0 for a missed j
   and right averaged) and each bone takes their median over the frames that could be used. The paper's ST* takes
   the mean over hand-picked T-pose frames; over all frames of detected 2D, the few frames with a gross detector
   outlier pull a mean far off and the SCA then enforces that wrong length on every frame; the median ignores them.
+  A frame whose solution still misses a length by more than half falls back to LS (structri's default
+  ``max_length_error``): the first-order SCA update can return bones metres long on gross outliers.
 
 Calibrations (:func:`baseline_cameras`): ``"exact"`` (every frame's true cameras), ``"perturbed"``
 (:func:`geometry.perturb_extrinsics_relative`: each extrinsic parameter (rotation vector, translation) times

@@ -61,8 +61,9 @@ class Status(enum.IntEnum):
     opposite cameras on a line through the joint): SCA was replaced by one ST step, as the official code
     does for its two-camera ring, because the multi-step update is singular there."""
     FALLBACK_LS = 2
-    """The constrained update produced a non-finite or non-solvable multiplier system; the returned
-    pose is the unconstrained least-squares solution (LS, ``b0``)."""
+    """The constrained update produced a non-finite or non-solvable multiplier system, or bones far from
+    their target lengths (``max_length_error``); the returned pose is the unconstrained least-squares solution
+    (LS, ``b0``)."""
     UNDERDETERMINED = 3
     """Some joint has fewer than two independent rays (zero confidences or parallel rays), so A is
     singular: the pose is regularised LS (a tiny Tikhonov term per joint); an unobserved joint lands at
@@ -425,7 +426,7 @@ def _default_weights(views, num_joints, confidences, dtype):
 
 def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array, "views 3 4 #F"],
            lengths: Float[Array, "bones #F"], weights: Float[Array, "views joints F"], *, skeleton, method,
-           n_steps, schedule, degenerate_rcond, lagrangian) -> StructriResult:
+           n_steps, schedule, degenerate_rcond, max_length_error, lagrangian) -> StructriResult:
     """One chunk of frames, frames on the last axis of every input and output."""
     tree = _tree(skeleton)
     D, m = _quadratic_form(points_2d, projections, weights)
@@ -463,7 +464,12 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
                 A, beta, b0, lengths)
 
     pose = _pose_from_bones(tree, D, m, b)
-    finite = solvable & jnp.all(jnp.isfinite(pose), axis=(0, 1)) & jnp.all(jnp.isfinite(lam), axis=0)
+    meets_lengths = True
+    if max_length_error != float("inf"):
+        length_error = jnp.abs(jnp.sqrt(jnp.sum(b**2, axis=1)) - lengths)
+        meets_lengths = jnp.all(length_error <= max_length_error * lengths, axis=0)
+    finite = (solvable & meets_lengths & jnp.all(jnp.isfinite(pose), axis=(0, 1))
+              & jnp.all(jnp.isfinite(lam), axis=0))
     status = jnp.where(underdetermined, Status.UNDERDETERMINED,
                        jnp.where(~finite, Status.FALLBACK_LS,
                                  jnp.where(single, Status.SINGLE_STEP, Status.OK)))
@@ -538,9 +544,9 @@ chunks run sequentially under ``lax.map``. Side by side (ST + SCA, 4 views, 10k 
 
 
 @functools.partial(jax.jit, static_argnames=("axes", "skeleton", "method", "n_steps", "schedule",
-                                              "degenerate_rcond", "lagrangian"))
+                                              "degenerate_rcond", "max_length_error", "lagrangian"))
 def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_steps, schedule,
-                degenerate_rcond, lagrangian):
+                degenerate_rcond, lagrangian, max_length_error=float("inf")):
     """Frames-first flat inputs -> frames-last chunks -> :func:`_chunk` under ``lax.map`` -> frames-first."""
     frames = points_2d.shape[0]
     chunk = max(1, min(frames, _CHUNK_FRAMES))
@@ -553,7 +559,7 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
         return jnp.moveaxis(x.reshape((num_chunks, chunk) + x.shape[1:]), 1, -1)
 
     kernel = functools.partial(_chunk, skeleton=skeleton, method=method, n_steps=n_steps, schedule=schedule,
-                               degenerate_rcond=degenerate_rcond,
+                               degenerate_rcond=degenerate_rcond, max_length_error=max_length_error,
                                lagrangian=dict(lagrangian) if lagrangian else None)
     shared = [x[..., None] if axis is None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
     batched = [to_chunks(x) if axis is not None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
@@ -566,10 +572,11 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
 
 
 def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_steps=1,
-           schedule="length", degenerate_rcond=0.0, lagrangian=()):
+           schedule="length", degenerate_rcond=0.0, lagrangian=(), max_length_error=float("inf")):
     frames, args, axes = _prepare(points_2d, cameras, bone_lengths, skeleton, confidences)
     out = _solve_flat(*args, axes=axes, skeleton=skeleton, method=method, n_steps=n_steps,
-                      schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian)
+                      schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian,
+                      max_length_error=max_length_error)
     return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]), out)
 
 
@@ -584,6 +591,7 @@ def structural_triangulation(
     schedule: str = "length",
     update: str = "first_order",
     degenerate_rcond: float = 1e-3,
+    max_length_error: float = 0.5,
 ) -> StructriResult:
     """Structural Triangulation with the Step Constraint Algorithm (paper Alg. 1, official code).
 
@@ -602,6 +610,10 @@ def structural_triangulation(
             ``A + 2 Lambda`` each step; dense, slower).
         degenerate_rcond: frames whose worst joint has a reciprocal condition number (of its 3x3
             block D_i) below this run a single ST step (:attr:`Status.SINGLE_STEP`); 0 disables it.
+        max_length_error: a frame whose solution misses some target length by more than this fraction of
+            it gets the LS pose (:attr:`Status.FALLBACK_LS`); ``inf`` disables the check, as the official
+            code has none. The update is a linearisation: with gross 2D outliers, or as the single step along
+            nearly parallel rays, it can return finite bones many times their length (``tests/test_structri.py``).
 
     Returns:
         :class:`StructriResult` with ``pose (*frames, J, 3)``, ``bones``, ``status``, ``multipliers``.
@@ -612,9 +624,11 @@ def structural_triangulation(
         raise ValueError(f"update must be 'first_order' or 'exact', got {update!r}")
     if int(n_steps) < 1:
         raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+    if not max_length_error > 0:
+        raise ValueError(f"max_length_error must be > 0, got {max_length_error}")
     method = "st" if update == "first_order" else "st_exact"
     return _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, int(n_steps),
-                  schedule, float(degenerate_rcond))
+                  schedule, float(degenerate_rcond), max_length_error=float(max_length_error))
 
 
 def ls_triangulation(

@@ -125,6 +125,10 @@ def _estimated_lengths(points, P, confidences, person, cfg) -> np.ndarray:
     return out
 
 
+_OFFICIAL = dict(max_length_error=float("inf"))
+"""The paper's protocol is the official code's, which returns ST's bones whatever their lengths."""
+
+
 def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, lengths, person, rng) -> dict:
     P = np.asarray(projection_matrices(structri_virtual_rig(views, pattern, up_axis=cfg.up_axis)))
     P, points, conf = _pad_views(P, _observe(P, poses, sigma, rng), max(cfg.views))
@@ -133,12 +137,13 @@ def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, len
         "LEM": lem_triangulation(points, P, confidences=conf),
         "DLT_m": lem_triangulation(points, P, confidences=conf, millimetres_per_unit=1.0),
         "LS": ls_triangulation(points, P, confidences=conf),
-        "ST": structural_triangulation(points, P, lengths, confidences=conf, n_steps=cfg.n_steps),
+        "ST": structural_triangulation(points, P, lengths, confidences=conf, n_steps=cfg.n_steps, **_OFFICIAL),
         "ST_exact": structural_triangulation(points, P, lengths, confidences=conf, n_steps=cfg.n_steps,
-                                             update="exact"),
+                                             update="exact", **_OFFICIAL),
         "Lagrangian": lagrangian_triangulation(points, P, lengths, confidences=conf,
                                                n_iterations=cfg.lagrangian_iterations),
-        "ST_est": structural_triangulation(points, P, estimated, confidences=conf, n_steps=cfg.n_steps),
+        "ST_est": structural_triangulation(points, P, estimated, confidences=conf, n_steps=cfg.n_steps,
+                                           **_OFFICIAL),
     }
     per_frame = {k: 1000.0 * np.asarray(mpjpe(r.pose, poses)) for k, r in results.items()}
     groups = [np.flatnonzero(person == p) for p in np.unique(person)]

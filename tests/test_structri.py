@@ -168,11 +168,14 @@ def test_degenerate_two_opposite_cameras():
                    lambda: lem_triangulation(points, P), lambda: ls_triangulation(points, P)):
         result = solver()
         assert np.all(np.isfinite(np.asarray(result.pose)))
-    st = structural_triangulation(points, P, LENGTHS)
+    official = dict(max_length_error=float("inf"))  # the official code checks no lengths
+    st = structural_triangulation(points, P, LENGTHS, **official)
     assert np.all(np.asarray(st.status) == Status.SINGLE_STEP)
-    single = structural_triangulation(points, P, LENGTHS, n_steps=1)
+    single = structural_triangulation(points, P, LENGTHS, n_steps=1, **official)
     np.testing.assert_allclose(st.pose, single.pose, rtol=0, atol=1e-12)
     assert mpjpe(st.pose, poses) < mpjpe(ls_triangulation(points, P).pose, poses)
+    # Along parallel rays the single step leaves bones many times their length: by default that is LS.
+    assert np.all(np.asarray(structural_triangulation(points, P, LENGTHS).status) == Status.FALLBACK_LS)
 
 
 def test_missing_and_far_lengths_are_finite(scene):
@@ -193,6 +196,25 @@ def test_missing_and_far_lengths_are_finite(scene):
     assert set(np.unique(np.asarray(far.status))) <= {Status.OK, Status.FALLBACK_LS}
 
 
+def test_gross_outliers_fall_back_to_ls_instead_of_metre_long_bones(scene):
+    """The first-order update is a linearisation: a head 800 px off in two of four views sends it to bones tens
+    of times their target length while every multiplier stays finite. Those frames must report FALLBACK_LS
+    and return LS; the clean frames keep ST's solution."""
+    _, _, points, P = scene
+    points = points.copy()
+    points[::2, :2, H36M17.index("head")] += np.array([800.0, -800.0])[:, None]  # every other frame
+    unchecked = structural_triangulation(points, P, LENGTHS, max_length_error=float("inf"))
+    assert np.all(np.asarray(unchecked.status) == Status.OK)
+    assert np.max(np.linalg.norm(np.asarray(unchecked.bones)[::2], axis=-1) / LENGTHS) > 10.0
+    st = structural_triangulation(points, P, LENGTHS)
+    ls = ls_triangulation(points, P)
+    fallback = np.asarray(st.status) == Status.FALLBACK_LS
+    assert fallback[::2].all() and not fallback[1::2].any()
+    np.testing.assert_array_equal(np.asarray(st.pose)[fallback], np.asarray(ls.pose)[fallback])
+    kept = np.abs(np.linalg.norm(np.asarray(st.bones)[~fallback], axis=-1) - LENGTHS) / LENGTHS
+    assert np.all(kept <= 0.5)
+
+
 def test_clear_errors(scene):
     _, rig, points, P = scene
     with pytest.raises(ValueError, match="bone_lengths"):
@@ -211,6 +233,8 @@ def test_clear_errors(scene):
         structural_triangulation(points, P, LENGTHS, skeleton=(-1, 0, 0))
     with pytest.raises(ValueError, match="distortion"):
         structural_triangulation(points, rig._replace(dist=rig.dist.at[:, 0].set(0.1)), LENGTHS)
+    with pytest.raises(ValueError, match="max_length_error"):
+        structural_triangulation(points, P, LENGTHS, max_length_error=0.0)
 
 
 @pytest.mark.timeout(240, method="thread")  # a deadlock blocks in C, where the signal method cannot interrupt
