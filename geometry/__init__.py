@@ -1,4 +1,5 @@
-"""The shared geometry core: cameras, projection, triangulation, rotations, skeletons, kinematics, metrics.
+"""The shared geometry core: cameras, projection, triangulation, rotations, skeletons, kinematics, body model,
+metrics.
 
 Every public function is pure and written for one item (one point, one camera, one pose), with
 shapes and units in its jaxtyping signature; batch with ``jax.vmap`` and compile with ``jax.jit``.
@@ -6,6 +7,7 @@ Each private module lists its public names in ``__all__``; they are re-exported 
 """
 
 from . import _jax_guard  # noqa: F401  (refuses the miscompiling jaxlib before any kernel runs)
+from ._body import *  # noqa: F403
 from ._calibration_io import *  # noqa: F403
 from ._camera import *  # noqa: F403
 from ._convert import *  # noqa: F403
