@@ -1,4 +1,4 @@
-"""Motion sources, multi-view scene synthesis with a 2D detector model, and real-dataset loaders."""
+"""Motion sources, multi-view scene synthesis with a 2D detector model, a mesh rasteriser, and real-dataset loaders."""
 
 from ._detections import *  # noqa: F403
 from ._shelf_campus import *  # noqa: F403
@@ -11,3 +11,4 @@ from ._clips import *  # noqa: F403
 from ._procedural import *  # noqa: F403
 from ._detector import *  # noqa: F403
 from ._scene import *  # noqa: F403
+from ._render import *  # noqa: F403
