@@ -20,6 +20,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 import flex
 import training
+from _killed_runs import Killed, assert_same_parameters, kill_at
 from flex import _train
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,33 +88,19 @@ def full_run(cache_dir, tmp_path_factory):
     return config, workdir, flex.train(config, workdir, resume=False, progress=False)
 
 
-def _leaves(model) -> list[np.ndarray]:
-    return [np.asarray(x) for x in jax.tree.leaves(nnx.state(model, nnx.Param))]
-
-
 def test_resume_is_bit_identical_and_the_model_loads(full_run, tmp_path):
     config, full_dir, full_model = full_run
-
-    class Killed(Exception):
-        pass
-
-    def kill(record):
-        if record["step"] == 3:
-            raise Killed
-
     with pytest.raises(Killed):
-        flex.train(config, tmp_path, resume=False, log=kill, progress=False)
+        flex.train(config, tmp_path, resume=False, log=kill_at(3), progress=False)
     resumed = flex.train(config, tmp_path, resume=True, progress=False)
-    for a, b in zip(_leaves(full_model), _leaves(resumed)):
-        assert_array_equal(a, b)
+    assert_same_parameters(full_model, resumed)
     records = [json.loads(line) for line in (full_dir / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in records] == [1, 2, 3, 4]
     assert {"loss", "position", "skeleton", "adversarial", "root", "contact", "contact_velocity", "discriminator",
             "lr"} <= set(records[0])
     assert records[1]["val_mpjpe_mm"] > 0
     loaded = flex.load_flex(full_dir / "model")
-    for a, b in zip(_leaves(full_model), _leaves(loaded)):
-        assert_array_equal(a, b)
+    assert_same_parameters(full_model, loaded)
     pool = flex.build_pool(VALIDATION, 2, 7, config.cache_dir, progress=False)
     assert_allclose(np.asarray(loaded(pool.points_2d, pool.confidences).joints),
                     np.asarray(full_model(pool.points_2d, pool.confidences).joints), rtol=1e-6)

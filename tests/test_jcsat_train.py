@@ -25,6 +25,7 @@ from jcsat import (
     window_batch,
 )
 import training
+from _killed_runs import Killed, assert_same_parameters, kill_at
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -235,27 +236,14 @@ def full_run(dataset, cache_dir, tmp_path_factory):
     return config, workdir, train(config, workdir, resume=False, progress=False)
 
 
-def _leaves(model) -> list[np.ndarray]:
-    return [np.asarray(x) for x in jax.tree.leaves(nnx.state(model, nnx.Param))]
-
-
 def test_resume_is_bit_identical(full_run, tmp_path):
     config, full_dir, full_model = full_run
-
-    class Killed(Exception):
-        pass
-
-    def kill_after_checkpoint(record):
-        if record["step"] == 2:
-            raise Killed
-
     with pytest.raises(Killed):
-        train(config, tmp_path, resume=False, log=kill_after_checkpoint, progress=False)
+        train(config, tmp_path, resume=False, log=kill_at(2), progress=False)  # just after a checkpoint
     with pytest.raises(ValueError, match="already has checkpoints"):
         train(config, tmp_path, resume=False, progress=False)
     resumed = train(config, tmp_path, resume=True, progress=False)
-    for a, b in zip(_leaves(full_model), _leaves(resumed)):
-        assert_array_equal(a, b)
+    assert_same_parameters(full_model, resumed)
 
     def records(path):
         return [{k: v for k, v in json.loads(line).items() if k != "seconds_per_step"}
@@ -269,8 +257,7 @@ def test_resume_is_bit_identical(full_run, tmp_path):
     assert sorted(int(p.name) for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit()) == [2, 4]
     # The shipped model file loads back into the same parameters.
     loaded = load_model(full_dir / "model")
-    for a, b in zip(_leaves(full_model), _leaves(loaded)):
-        assert_array_equal(a, b)
+    assert_same_parameters(full_model, loaded)
 
 
 def test_batch_size_must_divide_by_devices(monkeypatch, tmp_path):

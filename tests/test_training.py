@@ -13,6 +13,7 @@ from flax import nnx
 from numpy.testing import assert_array_equal
 
 import training
+from _killed_runs import Killed, kill_at
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,16 +41,8 @@ def _run(workdir, config=_Config(), steps=5, resume=False, log=lambda record: No
 
 def test_loop_resumes_bit_identically_and_refuses_misuse(tmp_path):
     full = _run(tmp_path / "full")
-
-    class Killed(Exception):
-        pass
-
-    def kill(record):
-        if record["step"] == 3:  # after the checkpoint at 2: step 3 is lost and redone
-            raise Killed
-
     with pytest.raises(Killed):
-        _run(tmp_path / "run", log=kill)
+        _run(tmp_path / "run", log=kill_at(3))  # after the checkpoint at 2: step 3 is lost and redone
     with pytest.raises(ValueError, match="already has checkpoints"):
         _run(tmp_path / "run")
     with pytest.raises(ValueError, match="differs from the config"):
