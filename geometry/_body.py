@@ -134,16 +134,22 @@ def load_body_model(path: str | Path, num_shapes: int | None = None) -> BodyMode
     missing = [key for key in _SMPL_KEYS if key not in raw]
     if missing:
         raise ValueError(f"{path} lacks the SMPL keys {missing}")
-    regressor = raw["J_regressor"]
-    regressor = regressor.toarray() if hasattr(regressor, "toarray") else np.asarray(regressor)  # scipy sparse
-    parents = tuple(int(p) if p < 2**31 else -1 for p in np.asarray(raw["kintree_table"])[0])
+    arrays = {key: np.asarray(raw[key].toarray() if hasattr(raw[key], "toarray") else raw[key])  # scipy sparse
+              for key in _SMPL_KEYS}
+    parents = tuple(int(p) if p < 2**31 else -1 for p in arrays["kintree_table"][0])
     if parents != SMPL24.parents:
         raise ValueError(f"{path}: kinematic tree {parents} is not SMPL24's {SMPL24.parents}")
-    shapedirs = np.asarray(raw["shapedirs"], np.float64)[..., :num_shapes]
-    return BodyModel(v_template=jnp.asarray(raw["v_template"], float), shapedirs=jnp.asarray(shapedirs),
-                     posedirs=jnp.asarray(np.asarray(raw["posedirs"], np.float64)), J_regressor=jnp.asarray(regressor),
-                     weights=jnp.asarray(np.asarray(raw["weights"], np.float64)),
-                     faces=jnp.asarray(np.asarray(raw["f"], np.int64).astype(np.int32)))
+    vertices, joints = arrays["v_template"].shape[0], SMPL24.num_joints
+    expected = {"v_template": (vertices, 3), "shapedirs": (vertices, 3, arrays["shapedirs"].shape[-1]),
+                "posedirs": (vertices, 3, 9 * (joints - 1)), "J_regressor": (joints, vertices),
+                "weights": (vertices, joints), "f": (arrays["f"].shape[0], 3)}
+    for key, shape in expected.items():
+        if arrays[key].shape != shape:
+            raise ValueError(f"{path}: {key} has shape {arrays[key].shape}, expected {shape} ({vertices} vertices)")
+    floats = {key: jnp.asarray(arrays[key].astype(np.float64)) for key in ("v_template", "posedirs", "J_regressor",
+                                                                            "weights")}
+    return BodyModel(**floats, shapedirs=jnp.asarray(arrays["shapedirs"][..., :num_shapes].astype(np.float64)),
+                     faces=jnp.asarray(arrays["f"].astype(np.int32)))
 
 
 # ----------------------------------------------------------------------------------------------

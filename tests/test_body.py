@@ -170,6 +170,9 @@ def test_clear_errors(tmp_path):
     np.savez(tmp_path / "tree.npz", **{**arrays, "kintree_table": tree})
     with pytest.raises(ValueError, match="not SMPL24"):
         load_body_model(tmp_path / "tree.npz")
+    np.savez(tmp_path / "weights.npz", **{**arrays, "weights": arrays["weights"][:-1]})
+    with pytest.raises(ValueError, match=r"weights has shape \(2529, 24\), expected \(2530, 24\)"):
+        load_body_model(tmp_path / "weights.npz")
     (tmp_path / "model.obj").write_text("")
     with pytest.raises(ValueError, match=".pkl or .npz"):
         load_body_model(tmp_path / "model.obj")
