@@ -3,11 +3,6 @@ parallelism (two forced CPU devices)."""
 
 import dataclasses
 import json
-import os
-import pickle
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import jax
@@ -20,10 +15,9 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 import flex
 import training
-from _killed_runs import Killed, assert_same_parameters, kill_at
 from flex import _train
+from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
 
-REPO = Path(__file__).resolve().parents[1]
 TINY = dataclasses.replace(flex.CONFIGS["cpu"], channels=8, heads=2, discriminator_channels=4, dropout=0.0)
 DATA = flex.DataConfig(views=2, frames=16, clips=("02_01_walk", "60_03_61_03_salsa"))
 VALIDATION = flex.DataConfig(views=2, frames=16, clips=flex.VALIDATION_CLIPS, camera_motion="dynamic")
@@ -142,24 +136,11 @@ def test_two_devices_match_one(cache_dir, tmp_path):
     model's output, not its parameters: the biases in front of batch norm get pure rounding noise as gradients,
     which Adam's first steps scale up to full-size updates, but batch norm removes them again."""
     config = _config(cache_dir)
-    (tmp_path / "config.pkl").write_bytes(pickle.dumps(config))
-    script = textwrap.dedent("""
-        import pickle, sys
-        import geometry  # before jax computes (XLA flags)
-        import jax
-        import numpy as np
-        jax.config.update("jax_enable_x64", True)
-        jax.config.update("jax_numpy_rank_promotion", "raise")
-        assert jax.local_device_count() == 2, jax.local_devices()
-        sys.path.insert(0, sys.argv[3])
+    out = run_on_two_devices("""
         from test_flex_train import _outputs_after_steps
-        losses, joints = _outputs_after_steps(pickle.loads(open(sys.argv[1], "rb").read()), 3)
-        np.savez(sys.argv[2], losses=losses, joints=joints)
-    """)
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    out = tmp_path / "two_devices.npz"
-    subprocess.run([sys.executable, "-c", script, str(tmp_path / "config.pkl"), str(out), str(Path(__file__).parent)],
-                   check=True, env=env, cwd=REPO, timeout=300)
+        losses, joints = _outputs_after_steps(config, 3)
+        np.savez(OUT, losses=losses, joints=joints)
+    """, config, tmp_path)
     losses, joints = _outputs_after_steps(config, 3)
     with np.load(out) as stored:
         assert_allclose(stored["losses"], losses, rtol=1e-5)

@@ -2,11 +2,6 @@
 
 import dataclasses
 import json
-import os
-import pickle
-import subprocess
-import sys
-import textwrap
 import time
 from pathlib import Path
 
@@ -25,9 +20,8 @@ from jcsat import (
     window_batch,
 )
 import training
-from _killed_runs import Killed, assert_same_parameters, kill_at
+from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
 
-REPO = Path(__file__).resolve().parents[1]
 
 # One tiny scene for training, one for validation (held-out clips, other seed); same shapes, so
 # the pipeline compiles once.
@@ -269,26 +263,12 @@ def test_batch_size_must_divide_by_devices(monkeypatch, tmp_path):
 def test_two_devices_match_one(dataset, cache_dir, tmp_path):
     """The train step with each batch split over 2 (forced CPU) devices gives the 1-device result."""
     config = _config(cache_dir=str(cache_dir))
-    (tmp_path / "config.pkl").write_bytes(pickle.dumps(config))
-    script = textwrap.dedent("""
-        import pickle, sys
-        import geometry  # before jax computes (XLA flags)
-        import jax
-        import numpy as np
-        jax.config.update("jax_enable_x64", True)
-        jax.config.update("jax_numpy_rank_promotion", "raise")
-        assert jax.local_device_count() == 2, jax.local_devices()
-        sys.path.insert(0, sys.argv[3])
+    out = run_on_two_devices("""
         from test_jcsat_train import _fixed_batch_steps
         from jcsat._data import build_dataset
-        config = pickle.loads(open(sys.argv[1], "rb").read())
         state, losses = _fixed_batch_steps(config, build_dataset(config.data, config.cache_dir), 2)
-        np.savez(sys.argv[2], losses, *[np.asarray(x) for x in jax.tree.leaves(state.params)])
-    """)
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    out = tmp_path / "two_devices.npz"
-    subprocess.run([sys.executable, "-c", script, str(tmp_path / "config.pkl"), str(out), str(Path(__file__).parent)],
-                   check=True, env=env, cwd=REPO, timeout=300)
+        np.savez(OUT, losses, *[np.asarray(x) for x in jax.tree.leaves(state.params)])
+    """, config, tmp_path)
     state, losses = _fixed_batch_steps(config, dataset, 2)
     with np.load(out) as stored:
         two = [stored[f"arr_{i}"] for i in range(len(stored.files))]

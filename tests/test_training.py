@@ -13,7 +13,7 @@ from flax import nnx
 from numpy.testing import assert_array_equal
 
 import training
-from _killed_runs import Killed, kill_at
+from _training_harness import Killed, kill_at
 
 
 @dataclasses.dataclass(frozen=True)
