@@ -40,7 +40,7 @@ from ._kinematics import forward_kinematics
 from ._rotations import _as_float
 from ._skeleton import SMPL24, Skeleton
 
-__all__ = ["BodyModel", "BodyOutput", "body_forward", "load_body_model", "stand_in_body_model"]
+__all__ = ["BodyModel", "BodyOutput", "body_forward", "body_joints", "load_body_model", "stand_in_body_model"]
 
 
 @jax.tree_util.register_dataclass
@@ -72,6 +72,21 @@ class BodyOutput(NamedTuple):
     """Posed joints (the origins of the skinning transforms), metres."""
 
 
+def _check_body_inputs(model: BodyModel, rotations, betas, translation) -> tuple[Array, Array, Array]:
+    rotations, betas, translation = map(_as_float, (rotations, betas, translation))
+    joints, shapes = model.J_regressor.shape[0], model.shapedirs.shape[-1]
+    if rotations.shape != (joints, 3, 3) or betas.shape != (shapes,) or translation.shape != (3,):
+        raise ValueError(f"need rotations ({joints}, 3, 3), betas ({shapes},) and translation (3,), got "
+                         f"{rotations.shape}, {betas.shape} and {translation.shape}")
+    return rotations, betas, translation
+
+
+def _pose_skeleton(model: BodyModel, rotations: Array, rest_joints: Array) -> tuple[Array, Array]:
+    parents = np.asarray(model.skeleton.parents)
+    offsets = rest_joints - jnp.where((parents >= 0)[:, None], rest_joints[np.maximum(parents, 0)], 0.0)
+    return forward_kinematics(rotations, offsets, rest_joints[model.skeleton.root], model.skeleton)
+
+
 def body_forward(
     model: BodyModel,
     rotations: Float[ArrayLike, "joints 3 3"],
@@ -86,24 +101,32 @@ def body_forward(
         betas: shape coefficients, as many as ``model.shapedirs`` has directions.
         translation: added to every vertex and joint (metres).
     """
-    rotations, betas, translation = map(_as_float, (rotations, betas, translation))
-    joints, shapes = model.J_regressor.shape[0], model.shapedirs.shape[-1]
-    if rotations.shape != (joints, 3, 3) or betas.shape != (shapes,) or translation.shape != (3,):
-        raise ValueError(f"need rotations ({joints}, 3, 3), betas ({shapes},) and translation (3,), got "
-                         f"{rotations.shape}, {betas.shape} and {translation.shape}")
+    rotations, betas, translation = _check_body_inputs(model, rotations, betas, translation)
     v_shaped = model.v_template + jnp.einsum("vcs,s->vc", model.shapedirs, betas)
     rest_joints = model.J_regressor @ v_shaped
     pose_features = (rotations[1:] - jnp.eye(3, dtype=rotations.dtype)[None]).reshape(-1)
     v_posed = v_shaped + jnp.einsum("vcp,p->vc", model.posedirs, pose_features)
-    parents = np.asarray(model.skeleton.parents)
-    offsets = rest_joints - jnp.where((parents >= 0)[:, None], rest_joints[np.maximum(parents, 0)], 0.0)
-    posed_joints, global_rotations = forward_kinematics(rotations, offsets, rest_joints[model.skeleton.root],
-                                                        model.skeleton)
+    posed_joints, global_rotations = _pose_skeleton(model, rotations, rest_joints)
     # Skin with the blended transforms v -> R_j (v - J_j) + G_j.
     blended_R = jnp.einsum("vj,jab->vab", model.weights, global_rotations)
     blended_t = model.weights @ (posed_joints - jnp.einsum("jab,jb->ja", global_rotations, rest_joints))
     vertices = jnp.einsum("vab,vb->va", blended_R, v_posed) + blended_t
     return BodyOutput(vertices + translation[None], posed_joints + translation[None])
+
+
+def body_joints(
+    model: BodyModel,
+    rotations: Float[ArrayLike, "joints 3 3"],
+    betas: Float[ArrayLike, "shapes"],
+    translation: Float[ArrayLike, "3"],
+) -> Float[Array, "joints 3"]:
+    """``body_forward(...).joints`` without skinning the vertices: the rest joints are linear in ``betas``
+    (regress the template and the shape directions once), so a training loss over thousands of frames costs
+    joints, not meshes."""
+    rotations, betas, translation = _check_body_inputs(model, rotations, betas, translation)
+    rest_joints = model.J_regressor @ model.v_template + jnp.einsum(
+        "jv,vcs,s->jc", model.J_regressor, model.shapedirs, betas)
+    return _pose_skeleton(model, rotations, rest_joints)[0] + translation[None]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -41,6 +41,8 @@ __all__ = [
     "projection_matrix",
     "camera_from_projection",
     "look_at",
+    "crop_camera_to_translation",
+    "translation_to_crop_camera",
 ]
 
 
@@ -315,3 +317,68 @@ def look_at(
     right = right / jnp.linalg.norm(right)
     down = jnp.cross(forward, right)
     return jnp.stack([right, down, forward])
+
+
+# --------------------------------------------------------------------------------------------
+# The weak-perspective crop camera of HMR-style regressors and full-perspective translation
+
+
+def _crop_frame(box: Array, K: Array) -> tuple[Float[Array, "2"], Float[Array, ""], Float[Array, ""]]:
+    """The square crop around a box (x0, y0, x1, y1) in pixels: its centre, its side ``b = max(w, h)`` and the
+    focal length ``F`` along the box's longer side (``f_y`` if ``h > w``, else ``f_x``)."""
+    if box.shape != (4,) or K.shape != (3, 3):
+        raise ValueError(f"need a box (4,) and K (3, 3), got {box.shape} and {K.shape}")
+    width, height = box[2] - box[0], box[3] - box[1]
+    centre = 0.5 * (box[:2] + box[2:])
+    return centre, jnp.maximum(width, height), jnp.where(height > width, K[1, 1], K[0, 0])
+
+
+def crop_camera_to_translation(
+    camera: Float[ArrayLike, "3"], box: Float[ArrayLike, "4"], K: Float[ArrayLike, "3 3"]
+) -> Float[Array, "3"]:
+    """Camera-frame root translation (metres) whose full perspective projection matches a weak-perspective crop
+    camera to first order at the root (Jiang et al. 2020, thesis Sect. 3.2.2).
+
+    Crop frame: ``box`` is (x0, y0, x1, y1) in pixels with centre ``c`` and ``b = max(w, h)``; the regressor sees
+    the ``b x b`` square around ``c``, whose normalised coordinates ``u`` in [-1, 1] are the pixels
+    ``c + (b / 2) u``. The crop camera ``[s, x, y]`` projects a root-relative point ``X`` (metres) to
+    ``u = s X_xy + (x, y)``: the root lands at ``(x, y)`` and a metre spans ``s b / 2`` pixels.
+
+    Full perspective with the root at ``gamma`` puts the root at pixel ``K gamma / gamma_z`` and, around it,
+    spans ``f / gamma_z`` pixels per metre. Equating the two:
+
+    - scale: ``F / gamma_z = s b / 2``, so ``gamma_z = 2 F / (s b)``, with ``F`` the focal length along the box's
+      longer side (``f_y`` if ``h > w`` else ``f_x``; with non-square pixels only one axis can match);
+    - root: ``K gamma / gamma_z = c + (b / 2) (x, y)``, so ``gamma = gamma_z K^-1 [c + (b / 2) (x, y); 1]``, i.e.
+      without skew ``gamma_x = gamma_z ((b / 2) x + c_x - p_x) / f_x`` (``y`` alike), ``p`` the principal point.
+
+    The thesis prints ``gamma_x = gamma_z (x w + c_x - W / 2) / F``: its ``W / 2`` is the principal point of its
+    K (Eq. 3.5), taken here from ``K``. The factor is ``b / 2`` because a unit of ``u`` is ``b / 2`` pixels, the
+    same normalisation that gives its own ``gamma_z = 2 F / (s b)``; ``x w`` would place the root elsewhere
+    than the crop camera projects it. What no weak camera has is the perspective term ``-(root pixel - p)
+    X_z / gamma_z`` (an off-axis body is seen a little from the side); it vanishes as the body moves away.
+    """
+    camera, box, K = (jnp.asarray(a) for a in (camera, box, K))
+    if camera.shape != (3,):
+        raise ValueError(f"camera must be [s, x, y], got shape {camera.shape}")
+    centre, size, focal = _crop_frame(box, K)
+    depth = 2.0 * focal / (camera[0] * size)
+    root_pixel = centre + 0.5 * size * camera[1:]
+    # K^-1 on the root's pixel, written out: K is upper triangular (skew honoured as everywhere in this module).
+    y = (root_pixel[1] - K[1, 2]) / K[1, 1]
+    x = (root_pixel[0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return depth * jnp.stack([x, y, jnp.ones_like(x)])
+
+
+def translation_to_crop_camera(
+    translation: Float[ArrayLike, "3"], box: Float[ArrayLike, "4"], K: Float[ArrayLike, "3 3"]
+) -> Float[Array, "3"]:
+    """The crop camera ``[s, x, y]`` of a root at camera-frame ``translation`` (metres, in front of the camera)
+    seen in ``box``: the inverse of :func:`crop_camera_to_translation` (see there for the crop frame)."""
+    translation, box, K = (jnp.asarray(a) for a in (translation, box, K))
+    if translation.shape != (3,):
+        raise ValueError(f"translation must have shape (3,), got {translation.shape}")
+    centre, size, focal = _crop_frame(box, K)
+    root_pixel = _normalised_to_pixels(K, translation[:2] / translation[2])
+    scale = 2.0 * focal / (translation[2] * size)
+    return jnp.concatenate([scale[None], (root_pixel - centre) / (0.5 * size)])

@@ -174,19 +174,22 @@ def pck_2d(
     gt: Float[ArrayLike, "*b J 2"],
     threshold_fraction: Float[ArrayLike, ""],
     mask: Bool[ArrayLike, "*b J"] | None = None,
+    box_size: Float[ArrayLike, "*b"] | None = None,
 ) -> Float[Array, "*b"]:
     """Bounding-box PCK: fraction of joints with pixel error strictly below ``threshold_fraction`` times
-    the longer side of the tight box around the selected ground-truth joints.
+    ``box_size``, the longer side of the person's box (pixels); without it, of the tight box around the
+    selected ground-truth joints.
 
     The normalisation is mmpose's ``PCKAccuracy(norm_item="bbox")`` (max of box width and height,
-    distance ``<`` threshold), usually at 0.2 or 0.05; mmpose takes the annotated person box, here the
-    box is the tight one around the ground-truth joints, since our data carries no person boxes.
+    distance ``<`` threshold), usually at 0.2 or 0.05, and the thesis' ``alpha max(h, w)`` (Sect. 5.3.1).
     """
     pred, gt = _same_shape(pred, gt)
     mask = _mask_or_ones(mask, pred.shape[:-1])
-    low = jnp.min(jnp.where(mask[..., None], gt, jnp.inf), axis=-2)
-    high = jnp.max(jnp.where(mask[..., None], gt, -jnp.inf), axis=-2)
-    box_size = jnp.max(high - low, axis=-1)
+    if box_size is None:
+        low = jnp.min(jnp.where(mask[..., None], gt, jnp.inf), axis=-2)
+        high = jnp.max(jnp.where(mask[..., None], gt, -jnp.inf), axis=-2)
+        box_size = jnp.max(high - low, axis=-1)
+    box_size = jnp.broadcast_to(jnp.asarray(box_size, pred.dtype), pred.shape[:-2])
     hit = (_joint_distances(pred, gt) < threshold_fraction * box_size[..., None]).astype(pred.dtype)
     return _masked_mean(hit, mask)
 

@@ -12,3 +12,5 @@ from ._procedural import *  # noqa: F403
 from ._detector import *  # noqa: F403
 from ._scene import *  # noqa: F403
 from ._render import *  # noqa: F403
+from ._retarget import *  # noqa: F403
+from ._video import *  # noqa: F403

@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from geometry import (SMPL24, BodyModel, body_forward, load_body_model, matrix_to_rotation_6d, rotation_6d_to_matrix,
-                      stand_in_body_model)
+from geometry import (SMPL24, BodyModel, body_forward, body_joints, load_body_model, matrix_to_rotation_6d,
+                      rotation_6d_to_matrix, stand_in_body_model)
 
 STAND_IN = stand_in_body_model()
 
@@ -102,6 +102,14 @@ def test_batches_with_vmap_and_has_finite_gradients():
 
     grads = jax.grad(loss, argnums=(0, 1))(rot6d, betas[0])
     assert all(np.all(np.isfinite(g)) and np.any(g != 0) for g in grads)
+
+
+def test_body_joints_equal_the_forward_joints_without_skinning():
+    rotations = random_rotations(7)
+    betas, translation = np.array([0.4, -0.3, 0.8]), np.array([0.1, -0.2, 3.0])
+    expected = body_forward(STAND_IN, rotations, betas, translation).joints
+    assert_allclose(body_joints(STAND_IN, rotations, betas, translation), expected, atol=1e-12)
+    assert_allclose(jax.jit(body_joints)(STAND_IN, rotations, betas, translation), expected, atol=1e-12)
 
 
 def test_stand_in_is_a_closed_outward_mesh_with_sound_weights():

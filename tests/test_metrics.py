@@ -165,6 +165,10 @@ def test_pck_2d_uses_the_longer_side_of_the_gt_box():
     # Masking the right-hand joints shrinks the box to 0 x 40: threshold 8 px.
     mask = np.array([True, False, False, True])
     assert_allclose(pck_2d(pred, gt, 0.2, mask), 0.0)
+    # The thesis' PCK: alpha times the longer side of the person's own box, here 200 px: threshold 10 px.
+    assert_allclose(pck_2d(pred, gt, 0.05, box_size=200.0), 0.25)
+    assert_allclose(pck_2d(np.stack([pred, gt]), np.stack([gt, gt]), 0.05, box_size=np.array([200.0, 1.0])),
+                    [0.25, 1.0])
 
 
 # --- PCP -----------------------------------------------------------------------------------------

@@ -1,0 +1,216 @@
+"""The dynamics data: synthetic videos of the shipped CMU clips, cut into person tracks of crops and ground truth.
+
+Each clip is retargeted to the body model with random shapes (:func:`mocap.retarget_clip`) and rendered
+``renders`` times with a slowly moving camera (:func:`mocap.synthesise_video`). Every rendered video gives
+``augmented_epochs`` variants, as the thesis caches eight augmented epochs (Sect. 5.2): its boxes jittered like a
+noisy tracker's (:func:`mocap.jitter_boxes`) and every second variant mirrored (:func:`mocap.flip_video`, ground
+truth mirrored with it). A person's frames in one variant form a *track*.
+
+A track's crops are square: side ``box_margin * max(w, h)`` of its (jittered) tight box, centred on it, resized
+to ``crop_size`` pixels. That square is the track's box everywhere else too: the crop camera of the HMR head is
+defined on it (:func:`geometry.crop_camera_to_translation`) and the 2D losses are normalised by it.
+
+:class:`Frames` holds one row per person and frame, every track's rows contiguous and in time order, so a
+window of a track is a slice of rows (:func:`window_starts`, :func:`gather_windows`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, NamedTuple, TypeVar
+
+import cv2
+import jax
+import numpy as np
+import tqdm
+from jaxtyping import Float, Int, UInt8
+
+import geometry
+import mocap
+import training
+
+__all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "DataConfig", "Frames",
+           "build_frames", "crop_square", "gather_windows", "square_boxes", "video_tracks", "window_starts",
+           "without_crops"]
+
+Columns = TypeVar("Columns", bound=Any)
+"""A pytree of per-row arrays (a :class:`Frames`, or a tuple of features and frames)."""
+
+TEST_SINGLE_PERSON_CLIPS: tuple[str, ...] = ("03_01_uneven", "02_04_jump")
+"""Held out: the single-person test samples."""
+TEST_MULTI_PERSON_CLIPS: tuple[str, ...] = ("60_05_61_05_salsa",)
+"""Held out: the two-person test samples (the second salsa pair; the first one trains)."""
+TRAIN_CLIPS: tuple[str, ...] = tuple(c for c in mocap.list_clips()
+                                     if c not in TEST_SINGLE_PERSON_CLIPS + TEST_MULTI_PERSON_CLIPS)
+
+
+@dataclasses.dataclass(frozen=True)
+class DataConfig:
+    """What a set of tracks is made of (written into every run's ``config.json``)."""
+
+    clips: tuple[str, ...] = TRAIN_CLIPS
+    renders: int = 2
+    """Videos per clip, each with its own camera path and body shapes."""
+    augmented_epochs: int = 4
+    """Variants of each video (box jitter; every second one mirrored)."""
+    jitter: bool = True
+    """Jitter the boxes (training); False: the tight boxes (testing)."""
+    flip: bool = True
+    """Mirror every second variant (training)."""
+    crop_size: int = 64
+    """Crop side, pixels (the thesis: 224 for ResNet-50; this CPU-sized backbone takes 64)."""
+    box_margin: float = 1.2
+    """Crop side over the longer side of the tight box."""
+    shape_std: float = 1.0
+    """Body shapes are drawn from N(0, shape_std^2) per coefficient."""
+    video: mocap.VideoConfig = mocap.VideoConfig()
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        unknown = sorted(set(self.clips) - set(mocap.list_clips()))
+        if unknown:
+            raise ValueError(f"unknown clips {unknown}; shipped clips are {mocap.list_clips()}")
+        for name in ("renders", "augmented_epochs", "crop_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.box_margin < 1.0:
+            raise ValueError(f"box_margin must be >= 1 (a crop holds its whole box), got {self.box_margin}")
+
+
+class Frames(NamedTuple):
+    """One row per person and frame (see the module docstring); float32, metres and pixels, camera frame."""
+
+    crops: UInt8[np.ndarray, "F size size 3"]
+    boxes: Float[np.ndarray, "F 4"]
+    """The square crop box ``(x0, y0, x1, y1)``, pixels."""
+    K: Float[np.ndarray, "F 3 3"]
+    rotations: Float[np.ndarray, "F 24 3 3"]
+    """Local joint rotations, the root's global in the camera frame."""
+    betas: Float[np.ndarray, "F S"]
+    root: Float[np.ndarray, "F 3"]
+    """The pelvis in the camera frame, metres: the translation the models predict."""
+    joints3d: Float[np.ndarray, "F 24 3"]
+    joints2d: Float[np.ndarray, "F 24 2"]
+    tight_boxes: Float[np.ndarray, "F 4"]
+    """The un-jittered tight box of the projected body (PCK's box size)."""
+    track: Int[np.ndarray, "F"]
+    """Track index; a track's rows are contiguous and in time order."""
+    video: Int[np.ndarray, "F"]
+    """Index of the rendered video variant the row comes from (people of one variant share it)."""
+    person: Int[np.ndarray, "F"]
+    """The person's index in its video."""
+    clip: Int[np.ndarray, "F"]
+    """Index into the config's ``clips``."""
+    frame: Int[np.ndarray, "F"]
+    """Frame index in the video."""
+
+    @property
+    def num_frames(self) -> int:
+        return self.track.shape[0]
+
+
+def square_boxes(boxes: Float[np.ndarray, "*n 4"], margin: float) -> Float[np.ndarray, "*n 4"]:
+    """Squares of side ``margin * max(w, h)`` centred on ``boxes`` (``(x0, y0, x1, y1)`` pixels)."""
+    centre = 0.5 * (boxes[..., :2] + boxes[..., 2:])
+    half = 0.5 * margin * np.max(boxes[..., 2:] - boxes[..., :2], axis=-1, keepdims=True)
+    return np.concatenate([centre - half, centre + half], axis=-1)
+
+
+def crop_square(image: UInt8[np.ndarray, "H W 3"], box: Float[np.ndarray, "4"], size: int) -> UInt8[np.ndarray, "size size 3"]:
+    """The square ``box`` of ``image`` resampled to ``size`` x ``size`` pixels (zeros outside the image).
+
+    Crop pixel ``i`` (its centre) is image point ``x0 + (i + 0.5) b / size - 0.5`` with ``b`` the box side, so
+    crop-normalised coordinates ``(i + 0.5) / size * 2 - 1`` in [-1, 1] span the box: the crop camera's frame."""
+    side = box[2] - box[0]
+    if not side > 0:
+        raise ValueError(f"crop box {box} has no area")
+    scale = size / side
+    transform = np.array([[scale, 0.0, -box[0] * scale + 0.5 * scale - 0.5],
+                          [0.0, scale, -box[1] * scale + 0.5 * scale - 0.5]])
+    return cv2.warpAffine(image, transform, (size, size), flags=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+
+
+def _cache_file(config: DataConfig, cache_dir: Path) -> Path:
+    name = json.dumps(training.to_jsonable(config), sort_keys=True)
+    return cache_dir / f"dynamics_frames_{hashlib.sha1(name.encode()).hexdigest()[:16]}.npz"
+
+
+def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str | Path | None = None,
+                 progress: bool = True) -> Frames:
+    """Render, augment and crop every clip of ``config`` (module docstring); cached in ``cache_dir`` when given
+    (a file named by a hash of the config, written atomically)."""
+    path = None if cache_dir is None else _cache_file(config, Path(cache_dir))
+    if path is not None and path.is_file():
+        with np.load(path) as stored:
+            return Frames(**{name: stored[name] for name in Frames._fields})
+    rng = np.random.default_rng(config.seed)
+    rows: list[Frames] = []
+    variant = track = 0
+    jobs = [(c, r) for c in range(len(config.clips)) for r in range(config.renders)]
+    for clip_index, _ in tqdm.tqdm(jobs, disable=not progress, desc="render videos"):
+        clip = mocap.load_clip(config.clips[clip_index])
+        betas = rng.normal(0.0, config.shape_std, (clip.num_people, model.num_shapes))
+        video = mocap.synthesise_video(mocap.retarget_clip(clip, model, betas), model, config.video, rng)
+        for epoch in range(config.augmented_epochs):
+            shown = mocap.flip_video(video, model) if config.flip and epoch % 2 == 1 else video
+            rows.append(video_tracks(shown, config, rng, first_track=track, variant=variant, clip=clip_index))
+            track += clip.num_people
+            variant += 1
+    frames = Frames(*(np.concatenate(column) for column in zip(*rows)))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_suffix(".partial.npz")
+        np.savez(temporary, **frames._asdict())
+        temporary.replace(path)  # atomic: a killed run never leaves half a cache
+    return frames
+
+
+def video_tracks(video: mocap.Video, config: DataConfig, rng: np.random.Generator, first_track: int = 0,
+                 variant: int = 0, clip: int = 0) -> Frames:
+    """The tracks of every person of ``video`` (boxes jittered with ``rng`` if ``config.jitter``), person after
+    person, numbered from ``first_track``."""
+    noisy = mocap.jitter_boxes(video.boxes, rng) if config.jitter else video.boxes
+    boxes = square_boxes(noisy, config.box_margin)
+    tracks = [_track_rows(video, person, boxes[person], config.crop_size, first_track + person, variant, clip)
+              for person in range(video.boxes.shape[0])]
+    return Frames(*(np.concatenate(column) for column in zip(*tracks)))
+
+
+def _track_rows(video: mocap.Video, person: int, boxes: np.ndarray, size: int, track: int, variant: int,
+                clip: int) -> Frames:
+    length = video.frames.shape[0]
+    crops = np.stack([crop_square(video.frames[t], boxes[t], size) for t in range(length)])
+    ids = [np.full(length, value, np.int32) for value in (track, variant, person, clip)]
+    return Frames(crops, boxes.astype(np.float32), np.asarray(video.camera.K, np.float32),
+                  video.rotations[person].astype(np.float32),
+                  np.broadcast_to(video.betas[person], (length, video.betas.shape[1])).astype(np.float32),
+                  video.joints3d[person, :, 0].astype(np.float32), video.joints3d[person].astype(np.float32),
+                  video.joints2d[person].astype(np.float32), video.boxes[person].astype(np.float32),
+                  *ids, np.arange(length, dtype=np.int32))
+
+
+def without_crops(frames: Frames) -> Frames:
+    """``frames`` with an empty ``crops`` column (one byte per row), for the stages that read cached features."""
+    return frames._replace(crops=np.zeros(frames.num_frames, np.uint8))
+
+
+def window_starts(frames: Frames, length: int, stride: int = 1) -> Int[np.ndarray, "N"]:
+    """First rows of every window of ``length`` consecutive frames of one track, every ``stride`` frames."""
+    if length < 1 or stride < 1:
+        raise ValueError(f"length and stride must be >= 1, got {length} and {stride}")
+    starts = []
+    boundaries = np.flatnonzero(np.diff(frames.track)) + 1
+    for first, end in zip(np.r_[0, boundaries], np.r_[boundaries, frames.num_frames]):
+        starts.extend(range(first, end - length + 1, stride))
+    return np.asarray(starts, np.int64)
+
+
+def gather_windows(columns: Columns, starts: Int[np.ndarray, "B"], length: int) -> Columns:
+    """``columns`` (any NamedTuple of per-row arrays, e.g. :class:`Frames`) at rows ``starts[b] + 0..length-1``:
+    every array gains a ``(B, length)`` leading shape."""
+    index = np.asarray(starts)[:, None] + np.arange(length)[None]
+    return jax.tree.map(lambda column: column[index], columns)

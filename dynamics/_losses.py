@@ -1,0 +1,90 @@
+"""The per-frame loss ``L_t`` (thesis Eq. 3.9-3.11, 4.10-4.11) and the sequence terms of Eq. 4.9 and 4.12.
+
+The thesis gives no loss weights (it tuned learning rates only); :class:`LossWeights` defaults to HMMR's
+(``dynamics_reference.md`` section 2: 60 for the 2D, 3D-joint and SMPL terms, 1 for the adversarial term), with
+two deviations stated on the fields: a weak shape prior, because our bodies' shapes are drawn from N(0, 1)
+and a unit prior would pull them to the mean; and the translation term on the same scale as the 3D terms.
+
+Units: joints in metres (the 3D joint error after aligning the pelvises, as HMMR), 2D keypoints in
+crop-normalised units (pixels over half the crop box side, so a person's size in the image does not weight
+their frames), rotations as matrices (6D in, matrices compared: Zhou et al.'s recommendation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+import geometry
+
+from ._hmr import SMPLParams
+from ._phdt import params_to_joints
+from ._prior import PosePrior, lsgan_generator_loss
+
+__all__ = ["FrameTargets", "LossWeights", "frame_losses", "shape_consistency"]
+
+
+@dataclasses.dataclass(frozen=True)
+class LossWeights:
+    keypoints_2d: float = 60.0
+    joints_3d: float = 60.0
+    smpl: float = 60.0
+    adversarial: float = 1.0
+    shape_prior: float = 0.01
+    """lambda_reg of Eq. 4.11 (HMMR: 1): our shapes are drawn from N(0, 1), so the prior stays weak."""
+    shape_consistency: float = 1.0
+    """lambda_const of Eq. 4.9 and 4.12."""
+    temporal: float = 1.0
+    """lambda_temp of Eq. 4.12, on the mean squared feature difference."""
+    translation: float = 60.0
+    """lambda_transl of Eq. 4.12, on the squared root distance in metres (the 3D terms' scale)."""
+    delta: float = 1.0
+    """Weight of each delta predictor's frame loss relative to the present frame's (Eq. 4.9: 1)."""
+
+
+class FrameTargets(NamedTuple):
+    """Ground truth of frames (``*b`` leading axes), camera frame, as :class:`~dynamics.Frames` holds it."""
+
+    rotations: Float[Array, "*b 24 3 3"]
+    betas: Float[Array, "*b S"]
+    joints3d: Float[Array, "*b 24 3"]
+    joints2d: Float[Array, "*b 24 2"]
+    boxes: Float[Array, "*b 4"]
+    K: Float[Array, "*b 3 3"]
+
+
+def _project(K: Float[Array, "*b 3 3"], points: Float[Array, "*b J 3"]) -> Float[Array, "*b J 2"]:
+    pixels = jnp.einsum("...ij,...kj->...ki", K, points)
+    return pixels[..., :2] / pixels[..., 2:]
+
+
+def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b 3"] | None,
+                 targets: FrameTargets, prior: PosePrior | None, weights: LossWeights) -> dict[str, Array]:
+    """The weighted terms of ``L_t`` averaged over the frames: ``smpl``, ``joints_3d``, ``adversarial``,
+    ``shape_prior`` and, when ``root`` (the predicted pelvis, camera frame) is given, ``keypoints_2d``."""
+    targets = jax.tree.map(jnp.asarray, targets)
+    rotations = geometry.rotation_6d_to_matrix(params.rot6d)
+    joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
+    truth = targets.joints3d - targets.joints3d[..., :1, :]
+    terms = {
+        "smpl": weights.smpl * 0.5 * (jnp.mean((rotations - targets.rotations) ** 2)
+                                      + jnp.mean((params.betas - targets.betas) ** 2)),
+        "joints_3d": weights.joints_3d * 0.5 * jnp.mean((joints - truth) ** 2),
+        "shape_prior": weights.shape_prior * jnp.mean(jnp.sum(params.betas ** 2, axis=-1)),
+    }
+    if root is not None:
+        half_side = 0.5 * (targets.boxes[..., 2] - targets.boxes[..., 0])
+        error = jnp.abs(_project(targets.K, joints + root[..., None, :]) - targets.joints2d)
+        terms["keypoints_2d"] = weights.keypoints_2d * jnp.mean(error / half_side[..., None, None])
+    if prior is not None and weights.adversarial:
+        terms["adversarial"] = weights.adversarial * lsgan_generator_loss(prior(rotations, params.betas))
+    return terms
+
+
+def shape_consistency(betas: Float[Array, "*b T S"], weights: LossWeights) -> Array:
+    """lambda_const times the mean over consecutive frames of ``|beta_t - beta_{t+1}|^2``."""
+    return weights.shape_consistency * jnp.mean(jnp.sum((betas[..., 1:, :] - betas[..., :-1, :]) ** 2, axis=-1))

@@ -1,0 +1,71 @@
+"""The evaluation's outputs: the tables of Tables 5.2-5.11's layout, the plot of Fig. 5.1, and a strip of observed
+and predicted meshes rendered into the video frames."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import geometry  # noqa: E402
+import mocap  # noqa: E402
+
+from ._evaluate import HORIZONS  # noqa: E402
+
+__all__ = ["overlay_meshes", "plot_prediction", "results_markdown"]
+
+_NAMES = {"pa_mpjpe": "PA-MPJPE (mm) ↓", "mpjpe": "MPJPE (mm) ↓", "pck": "PCK@0.05 (%) ↑", "root": "root (mm) ↓"}
+_GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
+
+
+def results_markdown(summary: Mapping[str, dict]) -> str:
+    """Per sample group: a conditioning table (Table 5.2's layout) and a prediction table at
+    :data:`HORIZONS` (Table 5.4's layout), every metric of :data:`~dynamics.METRICS`."""
+    lines = []
+    for group, result in summary.items():
+        lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} windows)", "", "### Conditioning", "",
+                  "| method | " + " | ".join(_NAMES.values()) + " |", "|---|" + "---|" * len(_NAMES)]
+        for method, metrics in result["conditioning"].items():
+            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.1f}" for m in _NAMES) + " |")
+        lines += ["", "### Prediction (future frame)", "",
+                  "| method | " + " | ".join(f"{_NAMES[m]} @{k}" for m in _NAMES for k in HORIZONS) + " |",
+                  "|---|" + "---|" * (len(_NAMES) * len(HORIZONS))]
+        for method, metrics in result["prediction"].items():
+            lines.append(f"| {method} | " + " | ".join(f"{metrics[m][k - 1]:.1f}" for m in _NAMES for k in HORIZONS)
+                         + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_prediction(summary: Mapping[str, dict], group: str, path) -> None:
+    """Fig. 5.1: every metric against the future frame, one line per method."""
+    result = summary[group]["prediction"]
+    figure, axes = plt.subplots(1, len(_NAMES), figsize=(4 * len(_NAMES), 3.2))
+    for axis, metric in zip(axes, _NAMES):
+        for method, metrics in result.items():
+            values = metrics[metric]
+            axis.plot(np.arange(1, len(values) + 1), values, label=method)
+        axis.set_xlabel("future frame")
+        axis.set_title(_NAMES[metric])
+        axis.grid(alpha=0.3)
+    axes[0].legend()
+    figure.suptitle(f"Prediction, {_GROUP_TITLES[group]}")
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def overlay_meshes(frame: np.ndarray, K: np.ndarray, vertices: Sequence[np.ndarray], body: geometry.BodyModel,
+                   opacity: float = 0.7) -> np.ndarray:
+    """``frame`` with the camera-frame meshes ``vertices`` (one array per person) rendered over it."""
+    height, width = frame.shape[:2]
+    camera = geometry.Camera(np.asarray(K, float), np.eye(3), np.zeros(3), np.zeros(5), np.array([width, height], float))
+    rendering = mocap.render_people(camera, list(vertices), body, (width, height))
+    covered = rendering.person >= 0
+    out = frame.astype(float)
+    out[covered] = (1 - opacity) * out[covered] + opacity * rendering.image[covered]
+    return np.round(out).astype(np.uint8)

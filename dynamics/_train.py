@@ -1,0 +1,380 @@
+"""Training PHD+T on the synthetic videos, in three stages (thesis Sect. 4.2.2 and 5.2), each a resumable run of
+the project's loop (:func:`training.run_training`) in its own folder of the work directory.
+
+1. ``image/``: the crop backbone (:class:`~dynamics.ResNetBackbone`) and an HMR head on single frames, ``L_t``
+   (Eq. 4.10). The thesis starts from HMR's pretrained ResNet-50 and keeps it frozen; we have no pretrained
+   weights, so this stage trains ours. Then the backbone's features of every crop of every augmented variant
+   are computed once and cached (``features_*.npy``), as the thesis caches eight augmented epochs.
+2. ``movie/``: ``f_movie``, ``f_HMR`` (initialised from stage 1's head) and the delta predictors on windows of
+   ``T + H`` = 50 cached feature frames, Eq. 4.9: ``L_t`` on every frame from the 13th (the first with a full
+   receptive field), the delta predictors' losses at ``t + delta`` (their 3D terms: the crop box of another
+   frame is not observable from ``Phi_t``, so they get no 2D term), the shape consistency.
+3. ``ar/``: ``f_AR``, ``f_JE`` and ``f_transl`` with ``f_movie`` and ``f_HMR`` frozen, Eq. 4.12: observe 25 frames,
+   roll out 25 without teacher forcing, ``L_t`` on every predicted frame (2D through the predicted root) plus
+   ``lambda_temp |Phi~ - Phi^|^2`` and ``lambda_transl |gamma~ - gamma^|^2`` against the frozen conditioning
+   networks' estimates of the future frames, and the shape consistency.
+
+Each stage also trains the adversarial prior (:class:`~dynamics.PosePrior`, LSGAN) against the batch's ground
+truth poses (our "mocap" data) and the stage's predictions. Adam with a linear warm-up and a cosine decay; the
+thesis' rates (Tables C.2-C.3: 2e-5 and below) are for fine-tuning pretrained networks over many GPU epochs,
+ours start from scratch in minutes on a CPU, so they are larger (:class:`StageConfig`). Step i draws its
+batch and dropout from ``fold_in(key(seed), i)``: a resumed stage repeats an uninterrupted one exactly, and a
+finished stage is skipped when the run is resumed. Data parallel over the local devices (batches sharded,
+parameters replicated) as :func:`training.data_parallel_shardings` says.
+
+Outputs: ``config.json``, per stage ``log.jsonl`` and ``checkpoints/``, and the trained models
+``model/backbone`` and ``model/phdt`` (read back by :func:`load_trained`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import tqdm
+from flax import nnx
+
+import geometry
+import training
+
+from ._backbone import ResNetBackbone
+from ._data import DataConfig, Frames, build_frames, gather_windows, window_starts, without_crops
+from ._hmr import HMRHead, SMPLParams, mean_params
+from ._losses import FrameTargets, LossWeights, frame_losses, shape_consistency
+from ._phdt import PHDT, PHDTConfig, params_to_joints
+from ._prior import PosePrior, lsgan_discriminator_loss
+
+__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "compute_features", "load_trained", "train"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BackboneConfig:
+    widths: tuple[int, ...] = (16, 32, 64, 128)
+    blocks_per_stage: int = 1
+    feature_dim: int = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class StageConfig:
+    steps: int
+    batch_size: int
+    learning_rate: float
+    discriminator_lr: float = 1e-4
+    warmup_steps: int = 100
+    end_lr_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.steps < 1 or self.batch_size < 1:
+            raise ValueError(f"steps and batch_size must be >= 1, got {self.steps} and {self.batch_size}")
+        if not 0 <= self.warmup_steps < self.steps:
+            raise ValueError(f"warmup_steps must be in [0, steps={self.steps}), got {self.warmup_steps}")
+
+    def schedule(self, peak: float) -> optax.Schedule:
+        return optax.warmup_cosine_decay_schedule(0.0, peak, self.warmup_steps, self.steps, peak * self.end_lr_fraction)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines a training run (written to ``config.json``)."""
+
+    data: DataConfig = DataConfig()
+    validation: DataConfig = DataConfig(clips=("02_01_walk",), renders=1, augmented_epochs=1, jitter=False,
+                                        flip=False, seed=1_000)
+    """Fresh renders (new cameras and shapes) of a training clip: validation never sees a test clip."""
+    backbone: BackboneConfig = BackboneConfig()
+    model: PHDTConfig = PHDTConfig()
+    losses: LossWeights = LossWeights()
+    image: StageConfig = StageConfig(steps=2000, batch_size=32, learning_rate=1e-3)
+    movie: StageConfig = StageConfig(steps=600, batch_size=16, learning_rate=3e-4)
+    ar: StageConfig = StageConfig(steps=300, batch_size=16, learning_rate=3e-4, warmup_steps=30)
+    observed: int = 25
+    """T: observed frames."""
+    horizon: int = 25
+    """H: predicted frames in training (the test predicts 30)."""
+    seed: int = 0
+    checkpoint_interval: int = 100
+    validation_interval: int = 300
+    log_interval: int = 50
+    cache_dir: str | None = None
+    """Where rendered frames and features are cached; None: ``<workdir>/data_cache``."""
+
+    def __post_init__(self) -> None:
+        if self.model.feature_dim != self.backbone.feature_dim:
+            raise ValueError(f"the backbone gives {self.backbone.feature_dim} features, the model takes "
+                             f"{self.model.feature_dim}")
+        if self.observed < PHDTConfig().tcn_blocks * 2 * (self.model.tcn_kernel - 1) + 1:
+            raise ValueError(f"observe at least one receptive field of frames, got {self.observed}")
+        shared = set(self.data.clips) & set(self.validation.clips)
+        if shared and self.data.seed == self.validation.seed:
+            raise ValueError(f"validation renders of {sorted(shared)} must use another seed than training's")
+
+
+class TrainState(NamedTuple):
+    """Everything a step changes, plus the run's key: exactly what a checkpoint holds."""
+
+    params: Any
+    """The stage's trainable parameters."""
+    prior: Any
+    """The adversarial prior's parameters."""
+    opt: optax.OptState
+    prior_opt: optax.OptState
+    step: jax.Array
+    key: jax.Array
+
+
+class ImageRegressor(nnx.Module):
+    """Stage 1's network: crops -> backbone features -> HMR head."""
+
+    def __init__(self, backbone: BackboneConfig, model: PHDTConfig, *, rngs: nnx.Rngs):
+        self.backbone = ResNetBackbone(backbone.widths, backbone.blocks_per_stage, backbone.feature_dim, rngs=rngs)
+        self.hmr = HMRHead(backbone.feature_dim, mean_params(model.num_shapes), hidden=model.hmr_hidden,
+                           iterations=model.hmr_iterations, dropout=model.hmr_dropout, rngs=rngs)
+
+
+def _targets(rows: Frames) -> FrameTargets:
+    return FrameTargets(rows.rotations, rows.betas, rows.joints3d, rows.joints2d, rows.boxes, rows.K)
+
+
+def _roots(params: SMPLParams, boxes: jax.Array, K: jax.Array) -> jax.Array:
+    flat = jax.vmap(geometry.crop_camera_to_translation)(params.camera.reshape(-1, 3), boxes.reshape(-1, 4),
+                                                         K.reshape(-1, 3, 3))
+    return flat.reshape(boxes.shape[:-1] + (3,))
+
+
+def _crops(rows: Frames) -> jax.Array:
+    return jnp.asarray(rows.crops, jnp.float32) / 255.0
+
+
+def _total(terms: dict[str, jax.Array]) -> jax.Array:
+    return sum(terms.values())
+
+
+# ----------------------------------------------------------------------------------------------
+# The three objectives: (model, batch, key, prior, weights, body) -> (loss, terms, (fake rotations, fake betas)).
+
+def _image_objective(config: TrainConfig, body, model: ImageRegressor, rows: Frames, key, prior):
+    params = model.hmr(model.backbone(_crops(rows)), key=key)
+    terms = frame_losses(body, params, _roots(params, rows.boxes, rows.K), _targets(rows), prior, config.losses)
+    return _total(terms), terms, params
+
+
+def _movie_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Array, Frames], key, prior):
+    features, rows = batch
+    first = model.receptive_field - 1
+    head_key, delta_key = jax.random.split(key)
+    temporal = model.condition(features)[:, first:]
+    params = model.regress(temporal, head_key)
+    tail = jax.tree.map(lambda x: x[:, first:], rows)
+    terms = frame_losses(body, params, _roots(params, tail.boxes, tail.K), _targets(tail), prior, config.losses)
+    for offset, predicted in zip(config.model.delta_offsets, model.regress_deltas(temporal, params, delta_key)):
+        past = jax.tree.map(lambda x: x[:, first + offset: x.shape[1] + offset], rows)
+        delta_terms = frame_losses(body, predicted, None, _targets(past), None, config.losses)
+        terms[f"delta{offset}"] = config.losses.delta * _total(delta_terms)
+    terms["shape_consistency"] = shape_consistency(params.betas, config.losses)
+    return _total(terms), terms, params
+
+
+def _ar_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Array, Frames], key, prior):
+    features, rows = batch
+    T = config.observed
+    frozen = jax.lax.stop_gradient
+    observed = jax.tree.map(frozen, model.observe(body, features[:, :T], rows.boxes[:, :T], rows.K[:, :T]))
+    # The conditioning networks' estimate of the future frames: the targets of lambda_temp and lambda_transl.
+    reference = jax.tree.map(frozen, model.observe(body, features, rows.boxes, rows.K))
+    rollout = model.rollout(observed, config.horizon)
+    future = jax.tree.map(lambda x: x[:, T: T + config.horizon], rows)
+    terms = frame_losses(body, rollout.params, rollout.root, _targets(future), prior, config.losses)
+    terms["temporal"] = config.losses.temporal * jnp.mean(
+        (rollout.features - reference.temporal[:, T: T + config.horizon]) ** 2)
+    terms["translation"] = config.losses.translation * jnp.mean(
+        jnp.sum((rollout.root - reference.root[:, T: T + config.horizon]) ** 2, axis=-1))
+    terms["shape_consistency"] = shape_consistency(rollout.params.betas, config.losses)
+    return _total(terms), terms, rollout.params
+
+
+# ----------------------------------------------------------------------------------------------
+# One stage.
+
+def _run_stage(name: str, config: TrainConfig, stage: StageConfig, workdir: Path, model: nnx.Module,
+               trainable: Any, objective: Callable, sample: Callable[[jax.Array], Any],
+               validate: Callable[[nnx.Module], dict[str, float]], body: geometry.BodyModel, *, resume: bool,
+               log: Callable[[dict], None], progress: bool) -> nnx.Module:
+    """Train the ``trainable`` part of ``model`` on ``objective`` (module docstring) and return the model."""
+    replicated, batch_sharding = training.data_parallel_shardings(stage.batch_size)
+    graphdef, params, rest = nnx.split(model, trainable, ...)
+    prior_graphdef, prior_params = nnx.split(PosePrior(config.model.num_shapes, rngs=nnx.Rngs(config.seed + 1)))
+    optimizer = optax.adam(stage.schedule(stage.learning_rate))
+    prior_optimizer = optax.adam(stage.schedule(stage.discriminator_lr))
+    state = TrainState(params, prior_params, optimizer.init(params), prior_optimizer.init(prior_params),
+                       jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
+
+    @jax.jit
+    def train_step(state: TrainState, batch: Any, key: jax.Array) -> tuple[TrainState, dict[str, jax.Array]]:
+        prior = nnx.merge(prior_graphdef, state.prior)
+
+        def loss(params):
+            total, terms, fake = objective(config, body, nnx.merge(graphdef, params, rest), batch, key, prior)
+            return total, (terms, fake)
+
+        (total, (terms, fake)), grads = jax.value_and_grad(loss, has_aux=True)(state.params)
+        updates, opt = optimizer.update(grads, state.opt, state.params)
+        targets = batch if isinstance(batch, Frames) else batch[1]
+        fake_rotations = jax.lax.stop_gradient(geometry.rotation_6d_to_matrix(fake.rot6d)).reshape(-1, 24, 3, 3)
+        fake_betas = jax.lax.stop_gradient(fake.betas).reshape(-1, fake.betas.shape[-1])
+
+        def prior_loss(prior_params):
+            prior = nnx.merge(prior_graphdef, prior_params)
+            real = prior(targets.rotations.reshape(-1, 24, 3, 3), targets.betas.reshape(-1, targets.betas.shape[-1]))
+            return lsgan_discriminator_loss(real, prior(fake_rotations, fake_betas))
+
+        d_loss, d_grads = jax.value_and_grad(prior_loss)(state.prior)
+        d_updates, prior_opt = prior_optimizer.update(d_grads, state.prior_opt, state.prior)
+        new_state = TrainState(optax.apply_updates(state.params, updates), optax.apply_updates(state.prior, d_updates),
+                               opt, prior_opt, state.step + 1, state.key)
+        metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
+        return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
+
+    def step(state: TrainState, i: int):
+        sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
+        batch = jax.device_put(sample(sample_key), batch_sharding)
+        return train_step(state, batch, dropout_key)
+
+    state = training.run_training(
+        workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,
+        checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
+        validate=lambda state: validate(nnx.merge(graphdef, state.params, rest)), replicated=replicated,
+        learning_rate=stage.schedule(stage.learning_rate), log=log, progress=progress, description=f"dynamics {name}")
+    return nnx.merge(graphdef, state.params, rest)
+
+
+# ----------------------------------------------------------------------------------------------
+# Features, validation, the whole run.
+
+def compute_features(backbone: ResNetBackbone, crops: np.ndarray, batch_size: int = 256,
+                     progress: bool = False) -> np.ndarray:
+    """Backbone features (float32) of uint8 crops ``(F, size, size, 3)``."""
+    graphdef, state = nnx.split(backbone)
+
+    @jax.jit
+    def run(state, crops):
+        return nnx.merge(graphdef, state)(crops.astype(jnp.float32) / 255.0)
+
+    chunks = []
+    for first in tqdm.trange(0, len(crops), batch_size, disable=not progress, desc="crop features"):
+        chunk = crops[first: first + batch_size]
+        padded = np.concatenate([chunk, np.zeros((batch_size - len(chunk),) + chunk.shape[1:], chunk.dtype)])
+        chunks.append(np.asarray(run(state, padded))[: len(chunk)])
+    return np.concatenate(chunks).astype(np.float32)
+
+
+def _mpjpe_mm(body, params: SMPLParams, rows: Frames) -> float:
+    joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
+    truth = jnp.asarray(rows.joints3d) - jnp.asarray(rows.joints3d)[..., :1, :]
+    return 1000.0 * float(jnp.mean(jnp.linalg.norm(joints - truth, axis=-1)))
+
+
+def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
+    """The backbone and PHD+T written by :func:`train` to ``<workdir>/model`` (or a shipped copy of it)."""
+    path = Path(path)
+    backbone = training.load_model_state(path / "backbone", lambda fields: ResNetBackbone(
+        fields["widths"], fields["blocks_per_stage"], fields["feature_dim"], rngs=nnx.Rngs(0)))
+    phdt = training.load_model_state(path / "phdt", lambda fields: PHDT(PHDTConfig(**fields), rngs=nnx.Rngs(0)))
+    return backbone, phdt
+
+
+def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
+          log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> tuple[ResNetBackbone, PHDT]:
+    """Run the three stages of the module docstring in ``workdir`` and return the trained backbone and PHD+T.
+
+    ``resume=True`` continues a killed run (finished stages are restored, not retrained)."""
+    workdir = Path(workdir).resolve()
+    cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
+    frames = build_frames(config.data, body, cache_dir, progress)
+    validation = build_frames(config.validation, body, cache_dir, progress)
+
+    rngs = nnx.Rngs(config.seed)
+    image_model = ImageRegressor(config.backbone, config.model, rngs=rngs)
+
+    def sample_rows(key):
+        index = np.asarray(jax.random.randint(key, (config.image.batch_size,), 0, frames.num_frames))
+        return jax.tree.map(lambda column: column[index], frames)
+
+    @nnx.jit
+    def image_params(model, crops):
+        return model.hmr(model.backbone(crops))
+
+    def validate_image(model: ImageRegressor) -> dict[str, float]:
+        rows = jax.tree.map(lambda column: column[::4], validation)
+        return {"val_mpjpe_mm": _mpjpe_mm(body, image_params(model, _crops(rows)), rows)}
+
+    image_model = _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective,
+                             sample_rows, validate_image, body, resume=resume, log=log, progress=progress)
+
+    features = _cached_features(image_model.backbone, frames, config, cache_dir, "train", progress)
+    validation_features = _cached_features(image_model.backbone, validation, config, cache_dir, "validation",
+                                           progress)
+    length = config.observed + config.horizon
+    starts = window_starts(frames, length)
+    validation_starts = window_starts(validation, length, stride=10)
+
+    def sample_windows(key):
+        chosen = starts[np.asarray(jax.random.randint(key, (config.movie.batch_size,), 0, len(starts)))]
+        return gather_windows((features, without_crops(frames)), chosen, length)
+
+    validation_windows = gather_windows((validation_features, without_crops(validation)), validation_starts, length)
+
+    phdt = PHDT(config.model, rngs=rngs)
+    nnx.update(phdt.hmr, nnx.state(image_model.hmr))
+
+    def validate_movie(model: PHDT) -> dict[str, float]:
+        features, rows = validation_windows
+        params = model.regress(model.condition(jnp.asarray(features)))
+        first = model.receptive_field - 1
+        return {"val_mpjpe_mm": _mpjpe_mm(body, jax.tree.map(lambda x: x[:, first:], params),
+                                          jax.tree.map(lambda x: x[:, first:], rows))}
+
+    movie_parts = nnx.All(nnx.Param, nnx.Any(nnx.PathContains("movie"), nnx.PathContains("hmr"),
+                                              nnx.PathContains("deltas")))
+    phdt = _run_stage("movie", config, config.movie, workdir, phdt, movie_parts, _movie_objective, sample_windows,
+                      validate_movie, body, resume=resume, log=log, progress=progress)
+
+    def validate_ar(model: PHDT) -> dict[str, float]:
+        features, rows = validation_windows
+        T = config.observed
+        observed = model.observe(body, jnp.asarray(features[:, :T]), rows.boxes[:, :T], rows.K[:, :T])
+        rollout = model.rollout(observed, config.horizon)
+        future = jax.tree.map(lambda x: x[:, T:], rows)
+        root_error = jnp.linalg.norm(rollout.root - jnp.asarray(future.root), axis=-1)
+        return {"val_future_mpjpe_mm": _mpjpe_mm(body, rollout.params, future),
+                "val_future_root_mm": 1000.0 * float(jnp.mean(root_error))}
+
+    ar_parts = nnx.All(nnx.Param, nnx.Any(nnx.PathContains("ar"), nnx.PathContains("joint_encoder"),
+                                           nnx.PathContains("translation")))
+    phdt = _run_stage("ar", config, config.ar, workdir, phdt, ar_parts, _ar_objective, sample_windows, validate_ar,
+                      body, resume=resume, log=log, progress=progress)
+
+    training.save_model(workdir / "model" / "backbone", config.backbone, nnx.state(image_model.backbone))
+    training.save_model(workdir / "model" / "phdt", config.model, nnx.state(phdt))
+    return image_model.backbone, phdt
+
+
+def _cached_features(backbone: ResNetBackbone, frames: Frames, config: TrainConfig, cache_dir: Path, name: str,
+                     progress: bool) -> np.ndarray:
+    # Features belong to this run's trained backbone: the name carries the run's config.
+    digest = hashlib.sha1(json.dumps(training.to_jsonable(config), sort_keys=True).encode()).hexdigest()[:16]
+    path = cache_dir / f"dynamics_features_{name}_{digest}.npy"
+    if path.is_file():
+        return np.load(path)
+    features = compute_features(backbone, frames.crops, progress=progress)
+    temporary = path.with_suffix(".partial.npy")
+    np.save(temporary, features)
+    temporary.replace(path)
+    return features

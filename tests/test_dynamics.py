@@ -1,0 +1,132 @@
+"""PHD+T's data plumbing, model, losses and metrics (dynamics/_data.py, _phdt.py, _losses.py, _evaluate.py)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+from numpy.testing import assert_allclose
+
+import geometry
+from dynamics import (PHDT, FrameTargets, Frames, LossWeights, PHDTConfig, SMPLParams, crop_square, frame_losses,
+                      frame_metrics, gather_windows, square_boxes, window_starts, zero_motion)
+
+BODY = geometry.stand_in_body_model()
+CONFIG = PHDTConfig(feature_dim=128, joint_dim=128, hmr_hidden=64)
+K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
+
+
+def random_rotations(rng, shape):
+    return np.array(geometry.axis_angle_to_matrix(rng.normal(scale=0.4, size=shape + (3,))))
+
+
+def true_frames(rng, length: int, tracks: int = 1) -> Frames:
+    """Rows of ``tracks`` tracks of a random body walking in front of the camera, with consistent ground truth."""
+    count = length * tracks
+    rotations = random_rotations(rng, (count, 24))
+    rotations[:, 0] = np.diag([1.0, -1.0, -1.0])  # upright, facing the camera
+    betas = rng.normal(size=(count, 3))
+    root = np.stack([np.linspace(-0.5, 0.5, count), np.full(count, 0.2), np.full(count, 5.0)], axis=1)
+    joints = np.asarray(jax.vmap(geometry.body_joints, in_axes=(None, 0, 0, None))(BODY, rotations, betas, np.zeros(3)))
+    joints = joints - joints[:, :1] + root[:, None]
+    pixels = joints @ K.T
+    pixels = pixels[..., :2] / pixels[..., 2:]
+    tight = np.concatenate([pixels.min(axis=1), pixels.max(axis=1)], axis=1)
+    ids = np.arange(count)
+    return Frames(np.zeros((count, 8, 8, 3), np.uint8), square_boxes(tight, 1.2), np.broadcast_to(K, (count, 3, 3)),
+                  rotations, betas, root, joints, pixels, tight, ids // length, ids // length, np.zeros(count, int),
+                  np.zeros(count, int), ids % length)
+
+
+def true_params(frames: Frames) -> SMPLParams:
+    return SMPLParams(jnp.asarray(geometry.matrix_to_rotation_6d(frames.rotations)), jnp.asarray(frames.betas),
+                      jnp.zeros(frames.betas.shape[:-1] + (3,)))
+
+
+def test_crop_square_maps_the_box_onto_the_crop():
+    image = np.zeros((120, 160, 3), np.uint8)
+    image[40:60, 70:90] = 255  # a 20 px square centred on (79.5, 49.5)
+    crop = crop_square(image, np.array([59.5, 29.5, 99.5, 69.5]), 16)  # the 40 px box around it
+    assert crop.shape == (16, 16, 3)
+    assert np.all(crop[5:11, 5:11] == 255) and np.all(crop[:3] == 0) and np.all(crop[:, -3:] == 0)
+    with pytest.raises(ValueError, match="no area"):
+        crop_square(image, np.array([10.0, 10, 10, 20]), 16)
+
+
+def test_square_boxes_are_centred_squares_of_the_longer_side():
+    assert_allclose(square_boxes(np.array([[10.0, 20, 50, 100]]), 1.5), [[-30.0, 0, 90, 120]])
+
+
+def test_windows_never_cross_a_track():
+    frames = true_frames(np.random.default_rng(0), 6, tracks=3)
+    starts = window_starts(frames, 4, stride=1)
+    assert_allclose(starts, [0, 1, 2, 6, 7, 8, 12, 13, 14])
+    windows = gather_windows(frames, starts, 4)
+    assert windows.joints3d.shape == (9, 4, 24, 3)
+    assert np.all(windows.track == windows.track[:, :1])
+    assert_allclose(windows.frame[:, 0], [0, 1, 2] * 3)
+    assert len(window_starts(frames, 7)) == 0
+
+
+def test_the_ground_truth_scores_perfectly_and_a_shift_moves_only_root_and_pck():
+    frames = true_frames(np.random.default_rng(1), 5)
+    params = true_params(frames)
+    metrics = frame_metrics(BODY, params, jnp.asarray(frames.root), frames, 0.05)
+    assert_allclose(metrics["mpjpe"], 0.0, atol=1e-9)
+    assert_allclose(metrics["pa_mpjpe"], 0.0, atol=1e-5)
+    assert_allclose(metrics["root"], 0.0, atol=1e-9)
+    assert_allclose(metrics["pck"], 100.0)
+    shifted = frame_metrics(BODY, params, jnp.asarray(frames.root) + jnp.array([[0.3, 0, 0]]), frames, 0.05)
+    assert_allclose(shifted["mpjpe"], 0.0, atol=1e-9)
+    assert_allclose(shifted["root"], 300.0, rtol=1e-9)
+    assert np.all(np.asarray(shifted["pck"]) < 50.0)
+
+
+def test_losses_vanish_at_the_truth_except_the_shape_prior():
+    frames = true_frames(np.random.default_rng(2), 4)
+    targets = FrameTargets(frames.rotations, frames.betas, frames.joints3d, frames.joints2d, frames.boxes, frames.K)
+    terms = frame_losses(BODY, true_params(frames), jnp.asarray(frames.root), targets, None, LossWeights())
+    assert set(terms) == {"smpl", "joints_3d", "shape_prior", "keypoints_2d"}
+    for name in ("smpl", "joints_3d", "keypoints_2d"):
+        assert_allclose(terms[name], 0.0, atol=1e-9)
+    assert terms["shape_prior"] > 0
+    moved = frame_losses(BODY, true_params(frames), jnp.asarray(frames.root) + 0.1, targets, None, LossWeights())
+    assert moved["keypoints_2d"] > 0.1
+
+
+def test_observation_is_causal_and_rollout_is_jittable():
+    model = PHDT(CONFIG, rngs=nnx.Rngs(0))
+    rng = np.random.default_rng(3)
+    features = rng.normal(size=(2, 20, CONFIG.feature_dim))
+    boxes = np.broadcast_to(np.array([100.0, 60, 180, 140]), (2, 20, 4))
+    Ks = np.broadcast_to(K, (2, 20, 3, 3))
+    observed = model.observe(BODY, features, boxes, Ks)
+    changed = features.copy()
+    changed[:, 15:] += 1.0
+    later = model.observe(BODY, changed, boxes, Ks)
+    assert_allclose(later.params.rot6d[:, :15], observed.params.rot6d[:, :15], atol=1e-12)
+    assert_allclose(later.root[:, :15], observed.root[:, :15], atol=1e-12)
+    assert not np.allclose(later.params.rot6d[:, 15:], observed.params.rot6d[:, 15:])
+
+    eager = model.rollout(observed, 6)
+    graphdef, state = nnx.split(model)
+    jitted = jax.jit(lambda state, observed: nnx.merge(graphdef, state).rollout(observed, 6))(state, observed)
+    assert eager.params.rot6d.shape == (2, 6, 24, 6) and eager.root.shape == (2, 6, 3)
+    for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
+        assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    # An untrained translation head predicts no motion.
+    assert_allclose(eager.root, np.broadcast_to(observed.root[:, -1:], (2, 6, 3)), atol=1e-12)
+    with pytest.raises(ValueError, match="at least 13 observed frames"):
+        model.rollout(jax.tree.map(lambda x: x[:, :12], observed), 3)
+
+
+def test_zero_motion_repeats_the_last_observed_frame():
+    model = PHDT(CONFIG, rngs=nnx.Rngs(1))
+    features = np.random.default_rng(4).normal(size=(1, 14, CONFIG.feature_dim))
+    observed = model.observe(BODY, features, np.broadcast_to(np.array([100.0, 60, 180, 140]), (1, 14, 4)),
+                             np.broadcast_to(K, (1, 14, 3, 3)))
+    repeated = zero_motion(observed, 4)
+    for predicted, last in ((repeated.params.rot6d, observed.params.rot6d[:, -1]), (repeated.root, observed.root[:, -1]),
+                            (repeated.params.betas, observed.params.betas[:, -1])):
+        assert predicted.shape[1] == 4
+        assert_allclose(predicted, np.repeat(np.asarray(last)[:, None], 4, axis=1))
