@@ -24,7 +24,7 @@ import geometry
 import mocap
 import training
 
-from ._data import TEST_MULTI_PERSON_CLIPS, build_frames, video_tracks
+from ._data import TEST_MULTI_PERSON_CLIPS, build_frames, crop_square, square_boxes, video_tracks
 from ._evaluate import EvalConfig, predict_windows, summarise, zero_motion
 from ._phdt import PHDT
 from ._report import overlay_meshes, plot_prediction, results_markdown
@@ -37,6 +37,8 @@ SHIPPED_MODEL = Path(__file__).resolve().parent / "assets" / "phdt"
 
 STRIP_FRAMES: tuple[int, ...] = (12, 24, 25, 29, 34, 44, 54)
 """Window frames shown in the strip: two observed, then future frames 1, 5, 10, 20 and 30."""
+STRIP_SIZE = 240
+"""Pixels per strip image: the region around the people, enlarged."""
 
 
 def run_experiment(out: str | Path, backbone, model: PHDT, body: geometry.BodyModel, config: EvalConfig,
@@ -63,7 +65,7 @@ def run_experiment(out: str | Path, backbone, model: PHDT, body: geometry.BodyMo
 
 def write_strip(backbone, model: PHDT, body: geometry.BodyModel, config: EvalConfig) -> np.ndarray:
     """Rows: the video, PHD+T's meshes over it, ZeroMotion's; columns: :data:`STRIP_FRAMES` of the first window
-    of a freshly rendered two-person test clip. RGB uint8."""
+    of a freshly rendered two-person test clip, each cropped to the people. RGB uint8."""
     rng = np.random.default_rng(config.data.seed)
     clip = mocap.load_clip(TEST_MULTI_PERSON_CLIPS[0])
     motion = mocap.retarget_clip(clip, body, rng.normal(0.0, config.data.shape_std, (clip.num_people, body.num_shapes)))
@@ -76,7 +78,10 @@ def write_strip(backbone, model: PHDT, body: geometry.BodyModel, config: EvalCon
                               tracks._replace(crops=np.zeros(tracks.num_frames, np.uint8)))
     T = config.observed
     observed = model.observe(body, features[:, :T], per_person.boxes[:, :T], per_person.K[:, :T])
-    rows = [[video.frames[t] for t in STRIP_FRAMES]]
+    shown = video.boxes[:, list(STRIP_FRAMES)]
+    region = square_boxes(np.concatenate([shown[..., :2].min(axis=(0, 1)), shown[..., 2:].max(axis=(0, 1))]), 1.2)
+    zoom = lambda image: crop_square(image, region, STRIP_SIZE)  # noqa: E731  (the people, not the empty scene)
+    rows = [[zoom(video.frames[t]) for t in STRIP_FRAMES]]
     for rollout in (model.rollout(observed, config.horizon), zero_motion(observed, config.horizon)):
         params = jax.tree.map(lambda past, future: jnp.concatenate([past, future], axis=1), observed.params,
                               rollout.params)
@@ -84,7 +89,7 @@ def write_strip(backbone, model: PHDT, body: geometry.BodyModel, config: EvalCon
         row = []
         for t in STRIP_FRAMES:
             meshes = [_mesh(body, jax.tree.map(lambda x: x[p, t], params), roots[p, t]) for p in range(clip.num_people)]
-            row.append(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), meshes, body))
+            row.append(zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), meshes, body)))
         rows.append(row)
     return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
 

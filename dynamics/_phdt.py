@@ -158,9 +158,10 @@ class PHDT(nnx.Module):
 
         def advance(carry, _):
             window, root = carry
-            following = self.ar(window)[..., -1, :]
+            # The carry keeps its dtypes whatever the parameters' (float32 shipped models under jax_enable_x64).
+            following = self.ar(window)[..., -1, :].astype(window.dtype)
             joint_features = following[..., self.config.feature_dim:]
-            root = root + self.translation(joint_features)
+            root = root + self.translation(joint_features).astype(root.dtype)
             window = jnp.concatenate([window[..., 1:, :], following[..., None, :]], axis=-2)
             return (window, root), (following, root)
 

@@ -130,3 +130,21 @@ def test_zero_motion_repeats_the_last_observed_frame():
                             (repeated.params.betas, observed.params.betas[:, -1])):
         assert predicted.shape[1] == 4
         assert_allclose(predicted, np.repeat(np.asarray(last)[:, None], 4, axis=1))
+
+
+@pytest.mark.slow
+def test_experiment_on_the_shipped_models_writes_every_output(tmp_path):
+    from dynamics import SHIPPED_MODEL, DataConfig, EvalConfig, load_trained, run_experiment
+
+    backbone, model = load_trained(SHIPPED_MODEL)
+    config = EvalConfig(data=DataConfig(clips=("60_05_61_05_salsa",), renders=1, augmented_epochs=1, jitter=False,
+                                        flip=False, seed=2_000), stride=120)
+    results = run_experiment(tmp_path, backbone, model, BODY, config, progress=False)
+    two_person = results["summary"]["two_person"]
+    assert two_person["samples"] == 2 * 4  # two people, windows starting at frames 0, 120, 240, 360
+    for method in ("PHD+T", "ZeroMotion"):
+        assert len(two_person["prediction"][method]["mpjpe"]) == config.horizon
+        assert all(np.isfinite(two_person["prediction"][method][m]).all() for m in ("pa_mpjpe", "mpjpe", "pck", "root"))
+    for name in ("results.json", "results.md", "prediction_two_person.png", "strip.png"):
+        assert (tmp_path / name).is_file()
+    assert "| ZeroMotion |" in (tmp_path / "results.md").read_text()

@@ -1,9 +1,11 @@
 """Neural building blocks of the dynamics models (dynamics/_backbone.py, _hmr.py, _tcn.py, _prior.py) and the crop
 camera <-> translation conversion (geometry/_camera.py).
 
-Small widths and short sequences keep the file fast; every module is checked for batched shapes, jit == eager
-and finite gradients, plus the property it exists for (causality, the mean start, the first-order camera match,
-the LSGAN targets).
+Every module is checked for batched shapes, jit == eager (the eager call on one item of the jitted batch) and
+finite gradients, plus the property it exists for: causality, the mean start, the first-order camera match, the
+LSGAN targets. Compilation dominates the run time on a small CPU, so the file keeps the number of compiled
+programs low: small widths, test data and results handled in NumPy (indexing a JAX array compiles a kernel per
+shape), one program for a module's outputs and gradients, and keys of the "rbg" generator.
 """
 
 import jax
@@ -34,43 +36,48 @@ def build(factory):
     return nnx.jit(factory)()
 
 
-def normal(seed: int, shape: tuple[int, ...]) -> jax.Array:
-    """Test data from NumPy (nothing to compile)."""
-    return jnp.asarray(np.random.default_rng(seed).standard_normal(shape))
+def normal(seed: int, shape: tuple[int, ...]) -> np.ndarray:
+    return np.random.default_rng(seed).standard_normal(shape)
 
 
-def uniform(seed: int, shape: tuple[int, ...], minval: float = 0.0, maxval: float = 1.0) -> jax.Array:
-    return jnp.asarray(np.random.default_rng(seed).uniform(minval, maxval, shape))
+def uniform(seed: int, shape: tuple[int, ...], low: float = 0.0, high: float = 1.0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(low, high, shape)
+
+
+def random_rotations(seed: int, shape: tuple[int, ...]) -> np.ndarray:
+    rotvecs = 0.5 * normal(seed, (*shape, 3))
+    return Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix().reshape(*shape, 3, 3)
+
+
+def eager(model: nnx.Module, *args: np.ndarray, **kwargs):
+    """``model`` called op by op on NumPy inputs; NumPy outputs."""
+    return jax.tree.map(np.asarray, model(*(jnp.asarray(a) for a in args), **kwargs))
 
 
 def jitted(model: nnx.Module):
-    """``model(*args, **kwargs) -> (outputs, gradients)``: the outputs and the parameters' gradient of a scalar of
-    them, from one compiled program (the state is an argument, so ``model`` is not modified)."""
+    """``run(*args, **kwargs) -> (outputs, gradients)``: the model's outputs and the parameters' gradient of a
+    scalar of them from one compiled program (the state is an argument, ``model`` is not modified); NumPy in
+    and out."""
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
 
     def loss(params, args, kwargs):
         outputs = nnx.merge(graphdef, params, rest)(*args, **kwargs)
         return sum(jnp.sum(jnp.sin(leaf)) for leaf in jax.tree.leaves(outputs)), outputs
 
-    run = jax.jit(jax.grad(loss, has_aux=True))
+    compiled = jax.jit(jax.grad(loss, has_aux=True))
 
-    def call(*args, **kwargs):
-        gradients, outputs = run(params, args, kwargs)
-        return outputs, gradients
+    def run(*args, **kwargs):
+        gradients, outputs = compiled(params, tuple(jnp.asarray(a) for a in args), kwargs)
+        return jax.tree.map(np.asarray, outputs), jax.tree.map(np.asarray, gradients)
 
-    return call
+    return run
 
 
 def assert_finite_gradients(gradients) -> None:
     """Every gradient is finite, and not all of them are zero."""
     leaves = jax.tree.leaves(gradients)
-    assert all(bool(jnp.all(jnp.isfinite(g))) for g in leaves)
-    assert any(bool(jnp.any(g != 0)) for g in leaves)
-
-
-def random_rotations(seed: int, shape: tuple[int, ...]) -> jax.Array:
-    rotvecs = 0.5 * np.random.default_rng(seed).standard_normal((*shape, 3))
-    return jnp.asarray(Rotation.from_rotvec(rotvecs.reshape(-1, 3)).as_matrix().reshape(*shape, 3, 3))
+    assert all(np.all(np.isfinite(g)) for g in leaves)
+    assert any(np.any(g != 0) for g in leaves)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -91,12 +98,13 @@ def test_backbone_shapes_jit_and_gradients():
     run = jitted(backbone)
     features, gradients = run(crops)
     assert features.shape == (2, 1, 12)
-    assert_allclose(backbone(crops[1]), features[1], rtol=1e-9, atol=1e-12)  # eager, a smaller batch
+    assert_allclose(eager(backbone, crops[1]), features[1], rtol=1e-9, atol=1e-12)
     assert not np.allclose(features[0, 0], features[1, 0])
-    # No batch statistics: a crop's features do not depend on the other crops of the batch.
-    other, _ = run(crops.at[1].set(uniform(1, (1, 64, 64, 3))))
-    assert_allclose(other[0], features[0], rtol=1e-9, atol=1e-12)
     assert_finite_gradients(gradients)
+    # No batch statistics: a crop's features do not depend on the other crops of the batch.
+    other = crops.copy()
+    other[1] = uniform(1, (1, 64, 64, 3))
+    assert_allclose(run(other)[0][0], features[0], rtol=1e-9, atol=1e-12)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -113,7 +121,7 @@ def test_hmr_head_shapes_jit_dropout_and_gradients(head):
     run = jitted(head)
     params, gradients = run(features)
     assert [a.shape for a in params] == [(2, 3, 24, 6), (2, 3, NUM_SHAPES), (2, 3, 3)]
-    for got, want in zip(head(features[1, 2]), params):  # eager, one item
+    for got, want in zip(eager(head, features[1, 2]), params):
         assert_allclose(got, want[1, 2], rtol=1e-9, atol=1e-12)
     assert_finite_gradients(gradients)
     # Dropout only with a key: without one the head is deterministic, with one it samples.
@@ -123,56 +131,53 @@ def test_hmr_head_shapes_jit_dropout_and_gradients(head):
 
 
 def test_hmr_head_with_a_zero_decoder_returns_its_start(head):
-    mean = mean_params(NUM_SHAPES)
-    head = nnx.clone(head)
-    head.decoder.kernel[...] = jnp.zeros_like(head.decoder.kernel[...])
-    features = normal(0, (4, 24))
-    run = jitted(head)
+    mean = jax.tree.map(np.asarray, mean_params(NUM_SHAPES))
+    head = nnx.clone(head)  # the fixture is shared
+    head.decoder.kernel[...] = jnp.zeros(head.decoder.kernel.shape, head.decoder.kernel.dtype)
+    features = normal(0, (24,))  # one item, as the previous test's eager call: its kernels are compiled
     for key in (None, rbg_key(3)):
-        out, _ = run(features, key=key)
-        for got, want in zip(out, mean):
-            assert_allclose(got, jnp.broadcast_to(want[None], got.shape), atol=1e-7)  # the mean is stored float32
-    start = SMPLParams(*(normal(i, (4, *a.shape)) for i, a in enumerate(mean)))
-    for got, want in zip(run(features, start)[0], start):
+        for got, want in zip(eager(head, features, key=key), mean):
+            assert_allclose(got, want, atol=1e-7)  # the mean is stored float32
+    start = SMPLParams(*(normal(i, a.shape) for i, a in enumerate(mean)))
+    for got, want in zip(eager(head, features, start=jax.tree.map(jnp.asarray, start)), start):
         assert_allclose(got, want, atol=1e-12)
 
 
 def test_mean_params_face_the_camera_upright():
-    mean = mean_params(NUM_SHAPES)
+    mean = jax.tree.map(np.asarray, mean_params(NUM_SHAPES))
     assert mean.rot6d.shape == (24, 6) and mean.betas.shape == (NUM_SHAPES,)
     assert_allclose(mean.camera, [0.9, 0.0, 0.0])
     assert_allclose(mean.betas, 0.0)
-    rotations = geometry.rotation_6d_to_matrix(mean.rot6d)
-    assert_allclose(rotations[1:], jnp.broadcast_to(jnp.eye(3), (23, 3, 3)), atol=1e-12)
+    rotations = np.asarray(jax.jit(geometry.rotation_6d_to_matrix)(mean.rot6d))
+    assert_allclose(rotations[1:], np.broadcast_to(np.eye(3), (23, 3, 3)), atol=1e-12)
     body = geometry.stand_in_body_model()  # rest pose y up, facing +z, the person's left at +x
     # With every other joint at rest, the posed body is the rest body turned by the root's rotation.
-    joints = (body.J_regressor @ body.v_template) @ rotations[0].T
+    joints = (np.asarray(body.J_regressor) @ np.asarray(body.v_template)) @ rotations[0].T
     index = geometry.SMPL24.index
     assert joints[index("head"), 1] < joints[index("mid_hip"), 1]  # head up in the image: smaller camera y
     assert joints[index("l_hand"), 0] > joints[index("r_hand"), 0]  # facing us, the left hand is on the image right
-    assert rotations[0] @ jnp.array([0.0, 0.0, 1.0]) @ jnp.array([0.0, 0.0, 1.0]) == pytest.approx(-1.0)  # faces us
+    assert rotations[0, 2, 2] == pytest.approx(-1.0)  # the body's forward (+z) points back at the camera
 
 
 # ----------------------------------------------------------------------------------------------
 # Crop camera <-> translation
 
-K_SKEWED = jnp.array([[1100.0, 0.7, 660.0], [0.0, 1000.0, 350.0], [0.0, 0.0, 1.0]])
-TALL_BOX = jnp.array([500.0, 200.0, 600.0, 460.0])  # h > w: F = f_y
-WIDE_BOX = jnp.array([300.0, 400.0, 520.0, 470.0])  # w > h: F = f_x
+K_SKEWED = np.array([[1100.0, 0.7, 660.0], [0.0, 1000.0, 350.0], [0.0, 0.0, 1.0]])
+TALL_BOX = np.array([500.0, 200.0, 600.0, 460.0])  # h > w: F = f_y
+WIDE_BOX = np.array([300.0, 400.0, 520.0, 470.0])  # w > h: F = f_x
 
 
 @pytest.mark.parametrize("box, focal", [(TALL_BOX, 1000.0), (WIDE_BOX, 1100.0)])
 def test_crop_camera_round_trip_and_depth(box, focal):
-    camera = jnp.array([0.8, 0.15, -0.3])
-    translation = geometry.crop_camera_to_translation(camera, box, K_SKEWED)
-    size = float(jnp.max(box[2:] - box[:2]))
-    assert float(translation[2]) == pytest.approx(2.0 * focal / (0.8 * size))
+    camera = np.array([0.8, 0.15, -0.3])
+    translation = np.asarray(geometry.crop_camera_to_translation(camera, box, K_SKEWED))
+    size = np.max(box[2:] - box[:2])
+    assert translation[2] == pytest.approx(2.0 * focal / (0.8 * size))
     assert_allclose(geometry.translation_to_crop_camera(translation, box, K_SKEWED), camera, rtol=1e-12)
     # The root projects (full perspective, skew included) exactly where the crop camera puts it.
-    root_pixel = geometry.project(geometry.Camera.create(K_SKEWED, jnp.eye(3), translation), jnp.zeros(3))
-    centre = 0.5 * (box[:2] + box[2:])
-    assert_allclose(root_pixel, centre + 0.5 * size * camera[1:], rtol=1e-12)
-    other = jnp.array([0.4, -1.2, 9.0])
+    root_pixel = (K_SKEWED @ translation)[:2] / translation[2]
+    assert_allclose(root_pixel, 0.5 * (box[:2] + box[2:]) + 0.5 * size * camera[1:], rtol=1e-12)
+    other = np.array([0.4, -1.2, 9.0])
     assert_allclose(geometry.crop_camera_to_translation(geometry.translation_to_crop_camera(other, box, K_SKEWED),
                                                         box, K_SKEWED), other, rtol=1e-12)
     assert_allclose(jax.jit(geometry.crop_camera_to_translation)(camera, box, K_SKEWED), translation, rtol=1e-12)
@@ -183,15 +188,16 @@ def test_crop_camera_matches_full_perspective_to_first_order():
     """A body at a fixed lateral offset moving away: full perspective through the translation, in crop units,
     approaches the weak crop projection, with a relative error that falls like 1 / distance. At the root the
     projection's derivative along x and y is exactly the crop camera's scale."""
-    K = jnp.array([[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]])
-    body = uniform(0, (30, 3), minval=-0.5, maxval=0.5).at[0].set(0.0)  # root first
+    K = np.array([[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]])
+    body = uniform(0, (30, 3), -0.5, 0.5)
+    body[0] = 0.0  # the root
 
     @jax.jit
     def compare(distance):
-        """The body's box, crop camera and translation round trip, the relative error of the weak projection
-        and the full projection's derivative at the root (crop units per metre)."""
+        """The crop camera of the body's box, its translation, the weak projection's relative error and the full
+        projection's derivative at the root (crop units per metre)."""
         translation = jnp.stack([0.6, -0.4, distance])
-        camera_model = geometry.Camera(K, jnp.eye(3), translation, jnp.zeros(5), jnp.zeros(2))  # traceable
+        camera_model = geometry.Camera(jnp.asarray(K), jnp.eye(3), translation, jnp.zeros(5), jnp.zeros(2))
         pixels = jax.vmap(geometry.project_point, in_axes=(None, 0))(camera_model, body)
         box = jnp.concatenate([jnp.min(pixels, axis=0), jnp.max(pixels, axis=0)])
         crop_camera = geometry.translation_to_crop_camera(translation, box, K)
@@ -202,14 +208,14 @@ def test_crop_camera_matches_full_perspective_to_first_order():
 
         weak = crop_camera[0] * body[:, :2] + crop_camera[None, 1:]
         error = jnp.max(jnp.abs(jax.vmap(crop_units)(body) - weak)) / jnp.max(jnp.abs(weak - crop_camera[None, 1:]))
-        round_trip = geometry.crop_camera_to_translation(crop_camera, box, K)
-        return translation, round_trip, error, jax.jacfwd(crop_units)(jnp.zeros(3))[:, :2], crop_camera[0]
+        derivative = jax.jacfwd(crop_units)(jnp.zeros(3))[:, :2]
+        return crop_camera, geometry.crop_camera_to_translation(crop_camera, box, K), error, derivative
 
     errors = []
     for distance in (4.0, 8.0, 16.0, 32.0):
-        translation, round_trip, error, derivative, scale = compare(distance)
-        assert_allclose(round_trip, translation, rtol=1e-12)
-        assert_allclose(derivative, scale * jnp.eye(2), rtol=1e-12)
+        crop_camera, translation, error, derivative = jax.tree.map(np.asarray, compare(distance))
+        assert_allclose(translation, [0.6, -0.4, distance], rtol=1e-12)
+        assert_allclose(derivative, crop_camera[0] * np.eye(2), rtol=1e-12)
         errors.append(float(error))
     assert errors[-1] < 0.05  # a few per cent at 32 m, 0.7 m off the optical axis
     for nearer, farther in zip(errors, errors[1:]):
@@ -231,10 +237,10 @@ def test_tcn_shapes_jit_causality_and_gradients(tcn):
     """One batch of FRAMES + 1 sequences, arranged (3, 7): sequence t has frame t perturbed, the last is the
     original. Perturbing frame t leaves every earlier output bit-identical and changes output t."""
     x = normal(0, (FRAMES, CHANNELS))
-    perturbed = jnp.concatenate([x[None] + jnp.eye(FRAMES)[:, :, None], x[None]]).reshape(3, 7, FRAMES, CHANNELS)
+    perturbed = np.concatenate([x[None] + np.eye(FRAMES)[:, :, None], x[None]]).reshape(3, 7, FRAMES, CHANNELS)
     outputs, gradients = jitted(tcn)(perturbed)
     assert outputs.shape == perturbed.shape and tcn.receptive_field == 13
-    assert_allclose(tcn(perturbed[1, 2]), outputs[1, 2], rtol=1e-9, atol=1e-12)  # eager, one sequence
+    assert_allclose(eager(tcn, perturbed[1, 2]), outputs[1, 2], rtol=1e-9, atol=1e-12)
     outputs = outputs.reshape(FRAMES + 1, FRAMES, CHANNELS)
     for t in range(FRAMES):
         np.testing.assert_array_equal(outputs[t, :t], outputs[-1, :t])
@@ -243,13 +249,11 @@ def test_tcn_shapes_jit_causality_and_gradients(tcn):
 
 
 def test_tcn_output_t_sees_exactly_inputs_t_minus_12_to_t(tcn):
-    x = normal(1, (FRAMES, CHANNELS))
     graphdef, state = nnx.split(tcn)
-    jacobian = np.asarray(jax.jit(jax.jacfwd(lambda x: nnx.merge(graphdef, state)(x)))(x))  # (T out, C, T in, C)
-    depends = np.any(jacobian != 0.0, axis=(1, 3))  # exact: an unreachable input gets an exactly zero tangent
-    t_out, t_in = np.meshgrid(np.arange(FRAMES), np.arange(FRAMES), indexing="ij")
-    expected = (t_in <= t_out) & (t_in >= t_out - (tcn.receptive_field - 1))
-    np.testing.assert_array_equal(depends, expected)
+    jacobian = jax.jit(jax.jacfwd(lambda x: nnx.merge(graphdef, state)(x)))(normal(1, (FRAMES, CHANNELS)))
+    depends = np.any(np.asarray(jacobian) != 0.0, axis=(1, 3))  # (T out, T in); exact: an unreachable input
+    t_out, t_in = np.meshgrid(np.arange(FRAMES), np.arange(FRAMES), indexing="ij")  # gets an exactly zero tangent
+    np.testing.assert_array_equal(depends, (t_in <= t_out) & (t_in >= t_out - (tcn.receptive_field - 1)))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -267,29 +271,34 @@ def test_prior_shapes_jit_root_and_gradients(prior):
     run = jitted(prior)
     scores, gradients = run(rotations, betas)
     assert scores.shape == (2, 3, 25)
-    assert_allclose(prior(rotations[1, 2], betas[1, 2]), scores[1, 2], rtol=1e-9, atol=1e-12)  # eager, one item
-    # The root's global orientation is not judged.
-    turned = rotations.at[..., 0, :, :].set(random_rotations(2, (2, 3)))
-    assert_allclose(run(turned, betas)[0], scores, rtol=1e-12)
-    # Joint j's head sees only joint j + 1; the shape head only the betas.
-    bent, _ = run(rotations.at[..., 5, :, :].set(jnp.eye(3)), betas)
-    changed = np.any(np.abs(np.asarray(bent - scores)) > 0, axis=(0, 1))
-    np.testing.assert_array_equal(np.flatnonzero(changed), [4, 23])
-    changed = np.any(np.abs(np.asarray(run(rotations, betas + 1.0)[0] - scores)) > 0, axis=(0, 1))
-    np.testing.assert_array_equal(np.flatnonzero(changed), [24])
+    assert_allclose(eager(prior, rotations[1, 2], betas[1, 2]), scores[1, 2], rtol=1e-9, atol=1e-12)
     assert_finite_gradients(gradients)
+
+    def heads_changed_by(new_rotations, new_betas):
+        return np.flatnonzero(np.any(run(new_rotations, new_betas)[0] != scores, axis=(0, 1)))
+
+    # The root's global orientation is not judged; joint j's head sees only joint j + 1 (the full-pose head, 23,
+    # sees all of them); the shape head, 24, sees only the betas.
+    turned, bent = rotations.copy(), rotations.copy()
+    turned[..., 0, :, :] = random_rotations(2, (2, 3))
+    bent[..., 5, :, :] = np.eye(3)
+    np.testing.assert_array_equal(heads_changed_by(turned, betas), [])
+    np.testing.assert_array_equal(heads_changed_by(bent, betas), [4, 23])
+    np.testing.assert_array_equal(heads_changed_by(rotations, betas + 1.0), [24])
 
 
 def test_lsgan_losses():
-    ones, zeros = jnp.ones((4, 25)), jnp.zeros((6, 25))
-    assert float(lsgan_discriminator_loss(ones, zeros)) == 0.0  # a perfect discriminator
-    assert float(lsgan_discriminator_loss(zeros, ones)) == 2.0  # a perfectly wrong one
-    assert float(lsgan_discriminator_loss(jnp.full((3, 25), 0.5), jnp.full((3, 25), 0.5))) == 0.5
-    assert float(lsgan_generator_loss(ones)) == 0.0  # the discriminator is fooled
-    assert float(lsgan_generator_loss(zeros)) == 1.0
-    # The mean over the heads: one head at 0 among 24 fooled ones costs 1 / 25.
-    assert float(lsgan_generator_loss(jnp.ones(25).at[3].set(0.0))) == pytest.approx(1 / 25)
-    real, fake = normal(0, (2, 5, 25))
-    grad_real, grad_fake = jax.grad(lsgan_discriminator_loss, argnums=(0, 1))(real, fake)
+    discriminator_loss, generator_loss = jax.jit(lsgan_discriminator_loss), jax.jit(lsgan_generator_loss)
+    ones, zeros, halves = np.ones((4, 25)), np.zeros((4, 25)), np.full((4, 25), 0.5)
+    assert float(discriminator_loss(ones, zeros)) == 0.0  # a perfect discriminator
+    assert float(discriminator_loss(zeros, ones)) == 2.0  # a perfectly wrong one
+    assert float(discriminator_loss(halves, halves)) == 0.5
+    assert float(generator_loss(ones)) == 0.0  # the discriminator is fooled
+    assert float(generator_loss(zeros)) == 1.0
+    one_head_unfooled = ones.copy()
+    one_head_unfooled[:, 3] = 0.0
+    assert float(generator_loss(one_head_unfooled)) == pytest.approx(1 / 25)  # the mean over the heads
+    real, fake = normal(0, (4, 25)), normal(1, (4, 25))
+    grad_real, grad_fake = jax.jit(jax.grad(lsgan_discriminator_loss, argnums=(0, 1)))(real, fake)
     assert_allclose(grad_real, 2 * (real - 1) / real.size, rtol=1e-12)
     assert_allclose(grad_fake, 2 * fake / fake.size, rtol=1e-12)
