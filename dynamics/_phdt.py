@@ -32,7 +32,7 @@ import geometry
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._tcn import CausalTCN
 
-__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "params_to_joints"]
+__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "params_to_joints", "project_pinhole"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +82,12 @@ class Rollout(NamedTuple):
     """``gamma~``: the pelvis in the camera frame, metres."""
 
 
+def project_pinhole(K: Float[Array, "*b 3 3"], points: Float[Array, "*b J 3"]) -> Float[Array, "*b J 2"]:
+    """Pixels of camera-frame points through an undistorted camera's intrinsics (the rendered videos have none)."""
+    pixels = jnp.einsum("...ij,...kj->...ki", K, points)
+    return pixels[..., :2] / pixels[..., 2:]
+
+
 def params_to_joints(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b 3"]) -> Float[Array, "*b 24 3"]:
     """Camera-frame joints of ``params`` with the pelvis at ``root`` (metres)."""
     rotations = geometry.rotation_6d_to_matrix(params.rot6d)
@@ -91,6 +97,13 @@ def params_to_joints(body: geometry.BodyModel, params: SMPLParams, root: Float[A
         jnp.zeros(3, rotations.dtype))
     joints = flat.reshape(*batch, 24, 3)
     return joints - joints[..., :1, :] + root[..., None, :]
+
+
+def crop_roots(params: SMPLParams, boxes: Float[Array, "*b 4"], K: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
+    """The camera-frame pelvis of each frame from its crop camera and square crop box, metres."""
+    flat = jax.vmap(geometry.crop_camera_to_translation)(params.camera.reshape(-1, 3), boxes.reshape(-1, 4),
+                                                         K.reshape(-1, 3, 3))
+    return flat.reshape(boxes.shape[:-1] + (3,))
 
 
 class PHDT(nnx.Module):
@@ -143,8 +156,7 @@ class PHDT(nnx.Module):
         features, boxes, K = map(jnp.asarray, (features, boxes, K))
         temporal = self.condition(features)
         params = self.regress(temporal, key)
-        root = jax.vmap(geometry.crop_camera_to_translation)(
-            params.camera.reshape(-1, 3), boxes.reshape(-1, 4), K.reshape(-1, 3, 3)).reshape(boxes.shape[:-1] + (3,))
+        root = crop_roots(params, boxes, K)
         joints = params_to_joints(body, params, root)
         return Observation(temporal, params, root, self.encode_joints(joints))
 

@@ -49,7 +49,7 @@ from ._backbone import ResNetBackbone
 from ._data import DataConfig, Frames, build_frames, gather_windows, window_starts, without_crops
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._losses import FrameTargets, LossWeights, frame_losses, shape_consistency
-from ._phdt import PHDT, PHDTConfig, params_to_joints
+from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
 from ._prior import PosePrior, lsgan_discriminator_loss
 
 __all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "compute_features", "load_trained", "train"]
@@ -143,12 +143,6 @@ def _targets(rows: Frames) -> FrameTargets:
     return FrameTargets(rows.rotations, rows.betas, rows.joints3d, rows.joints2d, rows.boxes, rows.K)
 
 
-def _roots(params: SMPLParams, boxes: jax.Array, K: jax.Array) -> jax.Array:
-    flat = jax.vmap(geometry.crop_camera_to_translation)(params.camera.reshape(-1, 3), boxes.reshape(-1, 4),
-                                                         K.reshape(-1, 3, 3))
-    return flat.reshape(boxes.shape[:-1] + (3,))
-
-
 def _crops(rows: Frames) -> jax.Array:
     return jnp.asarray(rows.crops, jnp.float32) / 255.0
 
@@ -162,7 +156,7 @@ def _total(terms: dict[str, jax.Array]) -> jax.Array:
 
 def _image_objective(config: TrainConfig, body, model: ImageRegressor, rows: Frames, key, prior):
     params = model.hmr(model.backbone(_crops(rows)), key=key)
-    terms = frame_losses(body, params, _roots(params, rows.boxes, rows.K), _targets(rows), prior, config.losses)
+    terms = frame_losses(body, params, crop_roots(params, rows.boxes, rows.K), _targets(rows), prior, config.losses)
     return _total(terms), terms, params
 
 
@@ -173,7 +167,7 @@ def _movie_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Ar
     temporal = model.condition(features)[:, first:]
     params = model.regress(temporal, head_key)
     tail = jax.tree.map(lambda x: x[:, first:], rows)
-    terms = frame_losses(body, params, _roots(params, tail.boxes, tail.K), _targets(tail), prior, config.losses)
+    terms = frame_losses(body, params, crop_roots(params, tail.boxes, tail.K), _targets(tail), prior, config.losses)
     for offset, predicted in zip(config.model.delta_offsets, model.regress_deltas(temporal, params, delta_key)):
         past = jax.tree.map(lambda x: x[:, first + offset: x.shape[1] + offset], rows)
         delta_terms = frame_losses(body, predicted, None, _targets(past), None, config.losses)
