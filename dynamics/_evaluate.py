@@ -34,7 +34,7 @@ import geometry
 from ._data import TEST_MULTI_PERSON_CLIPS, TEST_SINGLE_PERSON_CLIPS, DataConfig, Frames, gather_windows, \
     window_starts, without_crops
 from ._hmr import SMPLParams
-from ._phdt import PHDT, Observation, Rollout, params_to_joints, project_pinhole
+from ._phdt import PHDT, Observation, Rollout, params_to_joints
 
 __all__ = ["EvalConfig", "HORIZONS", "METRICS", "frame_metrics", "predict_windows", "summarise", "zero_motion"]
 
@@ -75,7 +75,7 @@ def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Arra
     """The :data:`METRICS` of each frame (``*b``): mm, mm, percent, mm."""
     joints = params_to_joints(body, params, root)
     truth = jnp.asarray(rows.joints3d)
-    pixels = project_pinhole(jnp.asarray(rows.K), joints)
+    pixels = geometry.project_pinhole(jnp.asarray(rows.K), joints)
     box_size = jnp.max(jnp.asarray(rows.tight_boxes)[..., 2:] - jnp.asarray(rows.tight_boxes)[..., :2], axis=-1)
     return {
         "pa_mpjpe": 1000.0 * geometry.pa_mpjpe(joints, truth),

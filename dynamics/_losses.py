@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 import geometry
 
 from ._hmr import SMPLParams
-from ._phdt import params_to_joints, project_pinhole
+from ._phdt import params_to_joints
 from ._prior import PosePrior, lsgan_generator_loss
 
 __all__ = ["FrameTargets", "LossWeights", "frame_losses", "shape_consistency"]
@@ -73,7 +73,7 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
     }
     if root is not None:
         half_side = 0.5 * (targets.boxes[..., 2] - targets.boxes[..., 0])
-        error = jnp.abs(project_pinhole(targets.K, joints + root[..., None, :]) - targets.joints2d)
+        error = jnp.abs(geometry.project_pinhole(targets.K, joints + root[..., None, :]) - targets.joints2d)
         terms["keypoints_2d"] = weights.keypoints_2d * jnp.mean(error / half_side[..., None, None])
     if prior is not None and weights.adversarial:
         terms["adversarial"] = weights.adversarial * lsgan_generator_loss(prior(rotations, params.betas))

@@ -32,7 +32,7 @@ import geometry
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._tcn import CausalTCN
 
-__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "params_to_joints", "project_pinhole"]
+__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "params_to_joints"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,12 +80,6 @@ class Rollout(NamedTuple):
     params: SMPLParams
     root: Float[Array, "*b horizon 3"]
     """``gamma~``: the pelvis in the camera frame, metres."""
-
-
-def project_pinhole(K: Float[Array, "*b 3 3"], points: Float[Array, "*b J 3"]) -> Float[Array, "*b J 2"]:
-    """Pixels of camera-frame points through an undistorted camera's intrinsics (the rendered videos have none)."""
-    pixels = jnp.einsum("...ij,...kj->...ki", K, points)
-    return pixels[..., :2] / pixels[..., 2:]
 
 
 def params_to_joints(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b 3"]) -> Float[Array, "*b 24 3"]:

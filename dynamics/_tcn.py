@@ -39,7 +39,7 @@ class CausalConv(nnx.Module):
         first = jnp.broadcast_to(x[:, :1], (x.shape[0], self.kernel - 1, x.shape[2]))
         padded = jnp.concatenate([first, x], axis=1)
         # The convolution as k matrix products of shifted frames: the same numbers as lax.conv, but XLA's CPU
-        # backward pass of a convolution inside the autoregressive rollout was ~10x slower than of the products.
+        # backward pass of a convolution inside the autoregressive rollout was several times slower.
         frames = x.shape[1]
         kernel = self.conv.kernel[...]
         out = sum(padded[:, i: i + frames] @ kernel[i] for i in range(self.kernel))

@@ -271,8 +271,7 @@ def compute_features(backbone: ResNetBackbone, crops: np.ndarray, batch_size: in
 
 def _mpjpe_mm(body, params: SMPLParams, rows: Frames) -> float:
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
-    truth = jnp.asarray(rows.joints3d) - jnp.asarray(rows.joints3d)[..., :1, :]
-    return 1000.0 * float(jnp.mean(jnp.linalg.norm(joints - truth, axis=-1)))
+    return 1000.0 * float(jnp.mean(geometry.mpjpe_root_relative(joints, jnp.asarray(rows.joints3d), 0)))
 
 
 def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:

@@ -43,6 +43,7 @@ __all__ = [
     "look_at",
     "crop_camera_to_translation",
     "translation_to_crop_camera",
+    "project_pinhole",
 ]
 
 
@@ -331,6 +332,14 @@ def _crop_frame(box: Array, K: Array) -> tuple[Float[Array, "2"], Float[Array, "
     width, height = box[2] - box[0], box[3] - box[1]
     centre = 0.5 * (box[:2] + box[2:])
     return centre, jnp.maximum(width, height), jnp.where(height > width, K[1, 1], K[0, 0])
+
+
+def project_pinhole(K: Float[ArrayLike, "*b 3 3"], points: Float[ArrayLike, "*b n 3"]) -> Float[Array, "*b n 2"]:
+    """Pixels of camera-frame points through the intrinsics ``K`` alone (no distortion, no extrinsics): the
+    rendered videos' cameras, where a full :class:`Camera` is not at hand."""
+    K, points = jnp.asarray(K), jnp.asarray(points)
+    pixels = jnp.einsum("...ij,...nj->...ni", K, points)
+    return pixels[..., :2] / pixels[..., 2:]
 
 
 def crop_camera_to_translation(

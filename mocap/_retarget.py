@@ -40,6 +40,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
+import geometry
 from geometry import BODY25, H36M17, SMPL24, BodyModel
 
 from ._clips import Clip
@@ -111,23 +112,6 @@ def _kabsch(rest: Float[np.ndarray, "*batch K 3"], target: Float[np.ndarray, "*b
     fix = np.ones(u.shape[:-1])
     fix[..., 2] = np.sign(np.linalg.det(u @ vt))
     return (u * fix[..., None, :]) @ vt
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    zero = np.zeros(v.shape[:-1])
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-
-
-def _swing(start: Float[np.ndarray, "*batch 3"], end: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3 3"]:
-    """The smallest rotation taking unit ``start`` to unit ``end`` (half a turn about a normal if opposite)."""
-    cross, cosine = np.cross(start, end), np.sum(start * end, axis=-1)
-    k = _skew(cross)
-    rodrigues = np.eye(3) + k + k @ k / np.maximum(1.0 + cosine, 1e-12)[..., None, None]
-    helper = np.where(np.abs(start[..., :1]) < 0.9, _LEFT, _UP)
-    normal = _unit(np.cross(start, helper))
-    half_turn = 2.0 * normal[..., :, None] * normal[..., None, :] - np.eye(3)
-    return np.where((cosine < -1.0 + 1e-9)[..., None, None], half_turn, rodrigues)
 
 
 def _shaped_vertices(model: BodyModel, betas: Float[np.ndarray, "P S"]) -> Float[np.ndarray, "P V 3"]:
@@ -227,7 +211,8 @@ def _bone_rotation(rest_bone: np.ndarray, target_bone: np.ndarray, rest_referenc
                                                    np.concatenate([target_axis[..., None, :], target_references], -2))
     rotation = _kabsch(rest_pairs, target_pairs, np.concatenate([[1.0], weights]))
     # Conflicting references may tilt the fit off the bone by a little; swing it back on.
-    return _swing(np.einsum("...ij,...j->...i", rotation, rest_axis), target_axis) @ rotation
+    swing = np.asarray(geometry.rotation_between(np.einsum("...ij,...j->...i", rotation, rest_axis), target_axis))
+    return swing @ rotation
 
 
 def _one_child_references(name: str, parent_rotation: np.ndarray, references: dict[str, tuple[np.ndarray, np.ndarray]]

@@ -242,9 +242,8 @@ def _to_camera(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
     return np.einsum("tij,ptnj->ptni", rotation, points) + translation[None, :, None]
 
 
-def _project(K: Float[np.ndarray, "3 3"], in_camera: np.ndarray) -> np.ndarray:
-    """Pixels ``(..., 2)`` of camera-frame points ``(..., 3)`` (pinhole, no distortion)."""
-    return np.einsum("ij,...j->...i", K, in_camera)[..., :2] / in_camera[..., 2:]
+def _project(K: Float[np.ndarray, "3 3"], in_camera: Float[np.ndarray, "P T N 3"]) -> Float[np.ndarray, "P T N 2"]:
+    return np.asarray(geometry.project_pinhole(np.broadcast_to(K, in_camera.shape[:2] + (3, 3)), in_camera))
 
 
 def synthesise_video(motion: BodyMotion, model: BodyModel, config: VideoConfig, rng: np.random.Generator) -> Video:
