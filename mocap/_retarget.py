@@ -14,8 +14,8 @@ A :class:`~mocap.Clip` holds BODY25 and H36M17 joint POSITIONS (metres, z-up wor
    ``J_regressor @ v_shaped`` at the given betas) to the target directions:
 
    - the pelvis and spine3 from all their children (hips and spine1; neck and collars);
-   - a joint with one child from its bone (which is then matched exactly by a final swing) plus twist
-     references perpendicular to the bone: the next bone of a limb (a bent knee or elbow fixes the
+   - a joint with one child from its bone, matched exactly, plus twist references made perpendicular to
+     it: the next bone of a limb (a bent knee or elbow fixes the
      thigh's or upper arm's twist; the foot fixes the shin's), the toes' left-right axis for the ankle,
      and a weak hint equal to the parent's axes, so a straight limb inherits its parent's twist
      instead of flipping;
@@ -40,7 +40,6 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-import geometry
 from geometry import BODY25, H36M17, SMPL24, BodyModel
 
 from ._clips import Clip
@@ -209,10 +208,9 @@ def _bone_rotation(rest_bone: np.ndarray, target_bone: np.ndarray, rest_referenc
     target_references = _reject(_unit(target_references), target_axis[..., None, :])
     rest_pairs, target_pairs = np.broadcast_arrays(np.concatenate([rest_axis[..., None, :], rest_references], -2),
                                                    np.concatenate([target_axis[..., None, :], target_references], -2))
-    rotation = _kabsch(rest_pairs, target_pairs, np.concatenate([[1.0], weights]))
-    # Conflicting references may tilt the fit off the bone by a little; swing it back on.
-    swing = np.asarray(geometry.rotation_between(np.einsum("...ij,...j->...i", rotation, rest_axis), target_axis))
-    return swing @ rotation
+    # Every reference is perpendicular to the bone in both frames, so the best fit maps the bone onto the bone
+    # exactly and the references only choose the twist.
+    return _kabsch(rest_pairs, target_pairs, np.concatenate([[1.0], weights]))
 
 
 def _one_child_references(name: str, parent_rotation: np.ndarray, references: dict[str, tuple[np.ndarray, np.ndarray]]

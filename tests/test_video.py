@@ -82,7 +82,8 @@ def test_retarget_reproduces_the_clips_bone_directions(run):
     hips, model_hips = 0.5 * (body("l_hip") + body("r_hip")), 0.5 * (smpl("l_hip") + smpl("r_hip"))
     errors["spine"] = angle_degrees(smpl("neck") - model_hips,
                                     clip.h36m17[0, :, H36M17.index("thorax")] - hips).mean()
-    # Each limb's bone is matched exactly by the final swing; the spine only through interpolated targets.
+    # Each limb's bone is matched exactly (its twist references are perpendicular to it); the spine only through
+    # interpolated targets.
     assert max(errors[bone] for bone in ("thigh", "shin", "upper arm", "forearm")) < 0.01, errors
     assert errors["spine"] < 2.0, errors
     # The head looks where the nose points, and the pelvis faces the clip's forward (hips' left x up).
