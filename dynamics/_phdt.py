@@ -148,6 +148,10 @@ class PHDT(nnx.Module):
         """Reconstruct the observed frames of a track: ``Phi^``, ``Theta^``, ``gamma^`` (from the crop camera and
         the square crop boxes) and the joint features ``Gamma^`` of the reconstructed camera-frame joints."""
         features, boxes, K = map(jnp.asarray, (features, boxes, K))
+        frames = features.shape[:-1]
+        if features.shape[-1] != self.config.feature_dim or boxes.shape != frames + (4,) or K.shape != frames + (3, 3):
+            raise ValueError(f"need features (*b, T, {self.config.feature_dim}), boxes (*b, T, 4) and K (*b, T, 3, 3) "
+                             f"for the same frames, got {features.shape}, {boxes.shape} and {K.shape}")
         temporal = self.condition(features)
         params = self.regress(temporal, key)
         root = crop_roots(params, boxes, K)

@@ -110,7 +110,7 @@ class TrainConfig:
         if self.model.feature_dim != self.backbone.feature_dim:
             raise ValueError(f"the backbone gives {self.backbone.feature_dim} features, the model takes "
                              f"{self.model.feature_dim}")
-        if self.observed < PHDTConfig().tcn_blocks * 2 * (self.model.tcn_kernel - 1) + 1:
+        if self.observed < self.model.tcn_blocks * 2 * (self.model.tcn_kernel - 1) + 1:
             raise ValueError(f"observe at least one receptive field of frames, got {self.observed}")
         shared = set(self.data.clips) & set(self.validation.clips)
         if shared and self.data.seed == self.validation.seed:

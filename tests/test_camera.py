@@ -18,6 +18,7 @@ from geometry import (
     look_at,
     point_depth,
     project,
+    project_pinhole,
     project_point,
     project_to_views,
     projection_matrix,
@@ -100,6 +101,17 @@ def test_project_to_views_matches_per_view_cv2():
     for v in range(4):
         assert_allclose(out[v].reshape(-1, 2), cv2_project(rig.select(v), points.reshape(-1, 3)), atol=1e-6, rtol=0)
     assert_allclose(jax.jit(project_to_views)(rig, points), out, rtol=1e-12, atol=1e-9)
+
+
+def test_project_pinhole_matches_cv2_and_batches_per_frame():
+    rng = np.random.default_rng(5)
+    K = np.array([[[300.0, 0, 160], [0, 310, 120], [0, 0, 1]], [[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]])
+    points = rng.normal(size=(2, 6, 3)) * 0.4 + np.array([[[0.0, 0.0, 4.0]]])
+    out = project_pinhole(K, points)
+    for frame in range(2):
+        expected, _ = cv2.projectPoints(points[frame], np.zeros(3), np.zeros(3), K[frame], None)
+        assert_allclose(out[frame], expected[:, 0], atol=1e-9)
+    assert_allclose(jax.jit(project_pinhole)(K, points), out, rtol=1e-14)
 
 
 def test_camera_frame_and_depth():

@@ -116,6 +116,8 @@ def test_observation_is_causal_and_rollout_is_jittable():
         assert_allclose(a, b, rtol=1e-9, atol=1e-9)
     # An untrained translation head predicts no motion.
     assert_allclose(eager.root, np.broadcast_to(observed.root[:, -1:], (2, 6, 3)), atol=1e-12)
+    with pytest.raises(ValueError, match=f"need features \\(\\*b, T, {CONFIG.feature_dim}\\)"):
+        model.observe(BODY, features[..., :-1], boxes, Ks)
     with pytest.raises(ValueError, match="at least 13 observed frames"):
         model.rollout(jax.tree.map(lambda x: x[:, :12], observed), 3)
 
