@@ -16,10 +16,14 @@ from ._backbone import *  # noqa: F403
 from ._hmr import *  # noqa: F403
 from ._prior import *  # noqa: F403
 from ._tcn import *  # noqa: F403
+from ._attention import *  # noqa: F403
+from ._canonical import *  # noqa: F403
 from ._phdt import *  # noqa: F403
 from ._losses import *  # noqa: F403
 from ._data import *  # noqa: F403
+from ._jat import *  # noqa: F403
 from ._train import *  # noqa: F403
+from ._train_jat import *  # noqa: F403
 from ._evaluate import *  # noqa: F403
 from ._report import *  # noqa: F403
 from ._experiment import *  # noqa: F403

@@ -26,15 +26,15 @@ import cv2
 import jax
 import numpy as np
 import tqdm
-from jaxtyping import Float, Int, UInt8
+from jaxtyping import Bool, Float, Int, UInt8
 
 import geometry
 import mocap
 import training
 
 __all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "DataConfig", "Frames",
-           "build_frames", "crop_square", "gather_windows", "square_boxes", "video_tracks", "window_starts",
-           "without_crops"]
+           "build_frames", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
+           "window_starts", "without_crops"]
 
 Columns = TypeVar("Columns", bound=Any)
 """A pytree of per-row arrays (a :class:`Frames`, or a tuple of features and frames)."""
@@ -214,3 +214,31 @@ def gather_windows(columns: Columns, starts: Int[np.ndarray, "B"], length: int) 
     every array gains a ``(B, length)`` leading shape."""
     index = np.asarray(starts)[:, None] + np.arange(length)[None]
     return jax.tree.map(lambda column: column[index], columns)
+
+
+def scene_windows(frames: Frames, length: int, stride: int = 1, people: int | None = None,
+                  ) -> tuple[Int[np.ndarray, "W N length"], Bool[np.ndarray, "W N"]]:
+    """Windows of ``length`` consecutive frames of every video variant with all its people, every ``stride``
+    frames: the rows of each person and frame (person-major, as the multi-person models take scenes) and which
+    people exist. ``N`` is ``people`` (videos with more are refused) or the most people in any video; the rows
+    of an absent person repeat the first person's (finite inputs the models mask out)."""
+    if length < 1 or stride < 1:
+        raise ValueError(f"length and stride must be >= 1, got {length} and {stride}")
+    videos = [np.flatnonzero(frames.video == v) for v in np.unique(frames.video)]
+    most = max(len(np.unique(frames.person[rows])) for rows in videos)
+    people = most if people is None else people
+    if most > people:
+        raise ValueError(f"a video has {most} people, more than people={people}")
+    windows, present = [], []
+    for rows in videos:
+        tracks = [rows[frames.person[rows] == p] for p in np.unique(frames.person[rows])]
+        if any(not np.array_equal(frames.frame[t], frames.frame[tracks[0]]) for t in tracks):
+            raise ValueError(f"the people of video {frames.video[rows[0]]} are not seen in the same frames")
+        exists = np.arange(people) < len(tracks)
+        tracks += [tracks[0]] * (people - len(tracks))
+        for start in range(0, len(tracks[0]) - length + 1, stride):
+            windows.append(np.stack([t[start: start + length] for t in tracks]))
+            present.append(exists)
+    if not windows:
+        return np.zeros((0, people, length), np.int64), np.zeros((0, people), bool)
+    return np.stack(windows).astype(np.int64), np.stack(present)

@@ -1,8 +1,10 @@
 """Conditioning and prediction metrics of the thesis (Sect. 5.3) on held-out clips, and the ZeroMotion baseline.
 
-A test sample is a window of one person track: ``observed`` = 25 frames in, ``horizon`` = 30 frames predicted.
-Two-person samples come from the two-person clips (:data:`~dynamics.TEST_MULTI_PERSON_CLIPS`), single-person
-samples from the others; PHD+T treats each person on their own, so a two-person window is scored per person.
+A test window is a scene: every person of a rendered video over the same ``observed`` = 25 frames in and
+``horizon`` = 30 frames predicted (:func:`~dynamics.scene_windows`). A sample is one person of one window:
+two-person samples come from the two-person clips (:data:`~dynamics.TEST_MULTI_PERSON_CLIPS`), single-person
+samples from the others. Every model sees the whole scene; PHD+T and JAT treat each person on their own, MPJAT
+attends across people.
 
 Metrics per frame, averaged over samples (:data:`METRICS`):
 
@@ -31,10 +33,14 @@ from jaxtyping import Array, Float
 
 import geometry
 
-from ._data import TEST_MULTI_PERSON_CLIPS, TEST_SINGLE_PERSON_CLIPS, DataConfig, Frames, gather_windows, \
-    window_starts, without_crops
+from ._data import TEST_MULTI_PERSON_CLIPS, TEST_SINGLE_PERSON_CLIPS, DataConfig, Frames, scene_windows, \
+    without_crops
 from ._hmr import SMPLParams
-from ._phdt import PHDT, Observation, Rollout, params_to_joints
+from ._losses import penetration_depths
+from ._phdt import Observation, PHDTConfig, Rollout, params_to_joints
+
+PHDT_RECEPTIVE_FIELD = PHDTConfig().tcn_blocks * 2 * (PHDTConfig().tcn_kernel - 1) + 1
+"""13: conditioning is scored from this frame on, the first PHD+T reconstructs with a full receptive field."""
 
 __all__ = ["EvalConfig", "HORIZONS", "METRICS", "frame_metrics", "predict_windows", "summarise", "zero_motion"]
 
@@ -85,50 +91,92 @@ def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Arra
     }
 
 
-def predict_windows(body: geometry.BodyModel, model: PHDT, features: np.ndarray, frames: Frames,
-                    config: EvalConfig, batch_size: int = 64) -> dict[str, object]:
-    """Every test window's per-frame metrics for PHD+T and ZeroMotion.
+def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], features: np.ndarray,
+                    frames: Frames, config: EvalConfig, batch_size: int = 16) -> dict[str, object]:
+    """Every test sample's per-frame metrics for each of ``models`` (name -> :class:`~dynamics.PHDT` or
+    :class:`~dynamics.JAT`) and ZeroMotion, which repeats the last frame of the first model's conditioning.
 
-    Returns ``{"starts": (N,), "two_person": (N,) bool, "conditioning": {method: {metric: (N, T - 12)}},
-    "prediction": {method: {metric: (N, horizon)}}}``."""
-    starts = window_starts(frames, config.length, config.stride)
-    if len(starts) == 0:
-        raise ValueError(f"no track is {config.length} frames long")
-    graphdef, state = nnx.split(model)
+    The test windows are scenes (:func:`~dynamics.scene_windows`: every person of a video over the same
+    frames, single-person videos padded to two people); a sample is one person of one window. Returns
+    ``{"two_person": (S,) bool, "conditioning": {method: {metric: (S, T - 12)}}, "prediction": {method:
+    {metric: (S, horizon)}}, "penetration": {method: (S, horizon)}}``, the last in mm for the two-person samples
+    (:func:`penetration_depths` averaged over the sampled vertices), with the ground truth's as ``"ground truth"``."""
+    scenes, present = scene_windows(frames, config.length, config.stride, people=2)
+    if len(scenes) == 0:
+        raise ValueError(f"no video is {config.length} frames long")
     T = config.observed
+    first = PHDT_RECEPTIVE_FIELD - 1
+    columns = (features, without_crops(frames))
+
+    def scored(params, root, rows):
+        return frame_metrics(body, params, root, rows, config.pck_alpha)
+
+    def depths(params, root):
+        return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
+
+    def evaluate(model):
+        graphdef, state = nnx.split(model)
+
+        @jax.jit
+        def run(state, features, rows, present):
+            model = nnx.merge(graphdef, state)
+            past = jax.tree.map(lambda x: x[:, :, :T], rows)
+            observed = model.observe(body, features[:, :, :T], past.boxes, past.K, present)
+            rollout = model.rollout(body, observed, config.horizon, present)
+            future = jax.tree.map(lambda x: x[:, :, T:], rows)
+            tail = jax.tree.map(lambda x: x[:, :, first:], observed)
+            return (scored(tail.params, tail.root, jax.tree.map(lambda x: x[:, :, first:], past)),
+                    scored(rollout.params, rollout.root, future), depths(rollout.params, rollout.root),
+                    jax.tree.map(lambda x: x[:, :, -1:], observed))
+        return lambda features, rows, present: run(state, features, rows, present)
 
     @jax.jit
-    def run(state, features, rows):
-        model = nnx.merge(graphdef, state)
-        observed = model.observe(body, features[:, :T], rows.boxes[:, :T], rows.K[:, :T])
-        first = model.receptive_field - 1
-        past = jax.tree.map(lambda x: x[:, first:T], rows)
-        conditioning = frame_metrics(body, jax.tree.map(lambda x: x[:, first:], observed.params),
-                                     observed.root[:, first:], past, config.pck_alpha)
-        future = jax.tree.map(lambda x: x[:, T:], rows)
-        prediction = {name: frame_metrics(body, rollout.params, rollout.root, future, config.pck_alpha)
-                      for name, rollout in (("PHD+T", model.rollout(observed, config.horizon)),
-                                            ("ZeroMotion", zero_motion(observed, config.horizon)))}
-        return conditioning, prediction
+    def zero(last, rows):
+        repeated = zero_motion(last, config.horizon)
+        return scored(repeated.params, repeated.root, rows), depths(repeated.params, repeated.root)
 
-    columns = (features, without_crops(frames))
-    results = []
-    for first in range(0, len(starts), batch_size):
-        chunk = starts[first: first + batch_size]
-        padded = np.concatenate([chunk, np.full(batch_size - len(chunk), chunk[0])])
-        window_features, rows = gather_windows(columns, padded, config.length)
-        outputs = jax.device_get(run(state, jnp.asarray(window_features), rows))
-        results.append(jax.tree.map(lambda x: x[: len(chunk)], outputs))
-    conditioning, prediction = jax.tree.map(lambda *parts: np.concatenate(parts), *results)
-    multi = {config.data.clips.index(c) for c in TEST_MULTI_PERSON_CLIPS if c in config.data.clips}
-    return {"starts": starts, "two_person": np.isin(frames.clip[starts], list(multi)),
-            # ZeroMotion reconstructs the observed frames with PHD+T's networks: one conditioning row for both.
-            "conditioning": {"PHD+T": conditioning, "ZeroMotion": conditioning}, "prediction": prediction}
+    @jax.jit
+    def truth(rows):
+        params = SMPLParams(geometry.matrix_to_rotation_6d(rows.rotations), rows.betas, jnp.zeros_like(rows.root))
+        return depths(params, rows.root)
+
+    runners = {name: evaluate(model) for name, model in models.items()}
+    conditioning, prediction, penetration = ({name: [] for name in [*models, "ZeroMotion"]} for _ in range(3))
+    penetration["ground truth"] = []
+    for start in range(0, len(scenes), batch_size):
+        chunk = scenes[start: start + batch_size]
+        chunk_present = jnp.asarray(present[start: start + batch_size])
+        padded = np.concatenate([chunk, np.repeat(chunk[:1], batch_size - len(chunk), axis=0)])
+        window_features, rows = jax.tree.map(lambda column: column[padded], columns)
+        window_features = jnp.asarray(window_features)
+        padded_present = jnp.concatenate([chunk_present, jnp.zeros((batch_size - len(chunk), 2), bool)])
+        future = jax.tree.map(lambda x: x[:, :, T:], rows)
+        keep = lambda tree: jax.tree.map(lambda x: np.asarray(x)[: len(chunk)], tree)  # noqa: E731
+        for index, (name, run) in enumerate(runners.items()):
+            past_scores, future_scores, depth, last = run(window_features, rows, padded_present)
+            conditioning[name].append(keep(past_scores))
+            prediction[name].append(keep(future_scores))
+            penetration[name].append(keep(depth))
+            if index == 0:  # ZeroMotion repeats the first model's last observed frame and shares its conditioning
+                zero_scores, zero_depth = zero(last, future)
+                conditioning["ZeroMotion"].append(keep(past_scores))
+                prediction["ZeroMotion"].append(keep(zero_scores))
+                penetration["ZeroMotion"].append(keep(zero_depth))
+        penetration["ground truth"].append(keep(truth(future)))
+    samples = present.reshape(-1)
+    flatten = lambda x: x.reshape(-1, *x.shape[2:])[samples]  # noqa: E731  (present (window, person) pairs)
+    merge = lambda parts: jax.tree.map(lambda *p: flatten(np.concatenate(p)), *parts)  # noqa: E731
+    two_person = np.repeat(present.sum(axis=1) > 1, present.shape[1])[samples]
+    return {"two_person": two_person,
+            "conditioning": {name: merge(parts) for name, parts in conditioning.items()},
+            "prediction": {name: merge(parts) for name, parts in prediction.items()},
+            "penetration": {name: merge(parts) for name, parts in penetration.items()}}
 
 
 def summarise(windows: Mapping[str, object]) -> dict[str, dict]:
     """Mean metrics per sample group (``single_person``, ``two_person``, ``all``), method and task; prediction
-    at every future frame (index k - 1 for frame k)."""
+    at every future frame (index k - 1 for frame k); the two-person group also has each method's mean
+    ``penetration`` (mm) at every future frame."""
     groups = {"single_person": ~windows["two_person"], "two_person": windows["two_person"],
               "all": np.ones_like(windows["two_person"])}
     summary = {}
@@ -142,4 +190,7 @@ def summarise(windows: Mapping[str, object]) -> dict[str, dict]:
                     name: (float(np.mean(values[selected])) if task == "conditioning"
                            else np.mean(values[selected], axis=0).tolist())
                     for name, values in metrics.items()}
+    if "two_person" in summary:
+        summary["two_person"]["penetration"] = {method: np.mean(values[windows["two_person"]], axis=0).tolist()
+                                                for method, values in windows["penetration"].items()}
     return summary

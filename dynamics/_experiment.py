@@ -1,10 +1,10 @@
-"""The dynamics experiment (``python -m experiments.dynamics``): PHD+T and ZeroMotion on held-out synthetic videos.
+"""The dynamics experiment (``python -m experiments.dynamics``): the models and ZeroMotion on held-out synthetic videos.
 
 :func:`run_experiment` renders the held-out clips (:class:`~dynamics.EvalConfig`), computes the backbone features
 of their crops, scores every window (:func:`~dynamics.predict_windows`) and writes to ``out``:
 ``results.json`` (the configuration, the summary at every future frame, the timings), ``results.md`` (the tables),
-``prediction_<group>.png`` (Fig. 5.1 per sample group) and ``strip.png`` (one two-person window: the video, PHD+T's
-meshes and ZeroMotion's over it, at observed and future frames).
+``prediction_<group>.png`` (Fig. 5.1 per sample group) and ``strip.png`` (one two-person window: the video, each
+model's meshes and ZeroMotion's over it, at observed and future frames).
 """
 
 from __future__ import annotations
@@ -12,13 +12,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import nnx
 
 import geometry
 import mocap
@@ -26,14 +27,15 @@ import training
 
 from ._data import TEST_MULTI_PERSON_CLIPS, build_frames, crop_square, square_boxes, video_tracks
 from ._evaluate import EvalConfig, predict_windows, summarise, zero_motion
-from ._phdt import PHDT
 from ._report import overlay_meshes, plot_prediction, results_markdown
 from ._train import compute_features
 
-__all__ = ["SHIPPED_MODEL", "run_experiment"]
+__all__ = ["SHIPPED_MODEL", "SHIPPED_TRANSFORMERS", "run_experiment"]
 
 SHIPPED_MODEL = Path(__file__).resolve().parent / "assets" / "phdt"
 """The shipped backbone and PHD+T (``backbone/``, ``phdt/``), trained by the command in ``assets/README.md``."""
+SHIPPED_TRANSFORMERS = Path(__file__).resolve().parent / "assets" / "transformers"
+"""The shipped JAT, MPJAT and their ablations on the shipped backbone (:func:`~dynamics.load_transformers`)."""
 
 STRIP_FRAMES: tuple[int, ...] = (12, 24, 25, 29, 34, 44, 54)
 """Window frames shown in the strip: two observed, then future frames 1, 5, 10, 20 and 30."""
@@ -41,15 +43,17 @@ STRIP_SIZE = 240
 """Pixels per strip image: the region around the people, enlarged."""
 
 
-def run_experiment(out: str | Path, backbone, model: PHDT, body: geometry.BodyModel, config: EvalConfig,
-                   *, log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> dict:
-    """Evaluate and write the outputs listed in the module docstring; returns the ``results.json`` content."""
+def run_experiment(out: str | Path, backbone, models: Mapping[str, nnx.Module], body: geometry.BodyModel,
+                   config: EvalConfig, *, log: Callable[[dict], None] = lambda record: None,
+                   progress: bool = True) -> dict:
+    """Evaluate ``models`` (name -> PHD+T or a transformer; ZeroMotion repeats the first one's last observed
+    frame) and write the outputs listed in the module docstring; returns the ``results.json`` content."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     frames = build_frames(config.data, body, progress=progress)
     features = compute_features(backbone, frames.crops, progress=progress)
-    windows = predict_windows(body, model, features, frames, config)
+    windows = predict_windows(body, models, features, frames, config)
     summary = summarise(windows)
     seconds = round(time.perf_counter() - start, 1)
     results = {"config": training.to_jsonable(dataclasses.asdict(config)), "summary": summary, "seconds": seconds}
@@ -58,14 +62,16 @@ def run_experiment(out: str | Path, backbone, model: PHDT, body: geometry.BodyMo
     for group in summary:
         plot_prediction(summary, group, out / f"prediction_{group}.png")
     if any(c in config.data.clips for c in TEST_MULTI_PERSON_CLIPS):
-        cv2.imwrite(str(out / "strip.png"), write_strip(backbone, model, body, config)[..., ::-1])
+        cv2.imwrite(str(out / "strip.png"), write_strip(backbone, models, body, config)[..., ::-1])
     log({"event": "dynamics_experiment", "seconds": seconds})
     return results
 
 
-def write_strip(backbone, model: PHDT, body: geometry.BodyModel, config: EvalConfig) -> np.ndarray:
-    """Rows: the video, PHD+T's meshes over it, ZeroMotion's; columns: :data:`STRIP_FRAMES` of the first window
-    of a freshly rendered two-person test clip, each cropped to the people. RGB uint8."""
+def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyModel, config: EvalConfig
+                ) -> np.ndarray:
+    """Rows: the video, then each model's meshes over it, then ZeroMotion's (from the first model); columns:
+    :data:`STRIP_FRAMES` of the first window of a freshly rendered two-person test clip, each cropped to the
+    people. RGB uint8."""
     rng = np.random.default_rng(config.data.seed)
     clip = mocap.load_clip(TEST_MULTI_PERSON_CLIPS[0])
     motion = mocap.retarget_clip(clip, body, rng.normal(0.0, config.data.shape_std, (clip.num_people, body.num_shapes)))
@@ -73,25 +79,31 @@ def write_strip(backbone, model: PHDT, body: geometry.BodyModel, config: EvalCon
                              translation=motion.translation[:, :config.length])
     video = mocap.synthesise_video(motion, body, config.data.video, rng)
     tracks = video_tracks(video, config.data, rng)
-    features = jnp.asarray(compute_features(backbone, tracks.crops)).reshape(clip.num_people, config.length, -1)
-    per_person = jax.tree.map(lambda x: jnp.asarray(x).reshape(clip.num_people, config.length, *x.shape[1:]),
-                              tracks._replace(crops=np.zeros(tracks.num_frames, np.uint8)))
+    scene = (1, clip.num_people, config.length)
+    features = jnp.asarray(compute_features(backbone, tracks.crops)).reshape(*scene, -1)
+    rows = jax.tree.map(lambda x: jnp.asarray(x).reshape(*scene, *x.shape[1:]),
+                        tracks._replace(crops=np.zeros(tracks.num_frames, np.uint8)))
     T = config.observed
-    observed = model.observe(body, features[:, :T], per_person.boxes[:, :T], per_person.K[:, :T])
     shown = video.boxes[:, list(STRIP_FRAMES)]
     region = square_boxes(np.concatenate([shown[..., :2].min(axis=(0, 1)), shown[..., 2:].max(axis=(0, 1))]), 1.2)
     zoom = lambda image: crop_square(image, region, STRIP_SIZE)  # noqa: E731  (the people, not the empty scene)
-    rows = [[zoom(video.frames[t]) for t in STRIP_FRAMES]]
-    for rollout in (model.rollout(observed, config.horizon), zero_motion(observed, config.horizon)):
-        params = jax.tree.map(lambda past, future: jnp.concatenate([past, future], axis=1), observed.params,
+    strip = [[zoom(video.frames[t]) for t in STRIP_FRAMES]]
+    predictions = []
+    for model in models.values():
+        seen = model.observe(body, features[..., :T, :], rows.boxes[..., :T, :], rows.K[..., :T, :, :])
+        predictions.append((seen, model.rollout(body, seen, config.horizon)))
+    predictions.append((predictions[0][0], zero_motion(predictions[0][0], config.horizon)))
+    for seen, rollout in predictions:
+        # Scene arrays are (1, N, frames, ...): join observed and predicted frames on axis 2.
+        params = jax.tree.map(lambda past, future: jnp.concatenate([past, future], axis=2)[0], seen.params,
                               rollout.params)
-        roots = jnp.concatenate([observed.root, rollout.root], axis=1)
+        roots = jnp.concatenate([seen.root, rollout.root], axis=2)[0]
         row = []
         for t in STRIP_FRAMES:
             meshes = [_mesh(body, jax.tree.map(lambda x: x[p, t], params), roots[p, t]) for p in range(clip.num_people)]
             row.append(zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), meshes, body)))
-        rows.append(row)
-    return np.concatenate([np.concatenate(row, axis=1) for row in rows], axis=0)
+        strip.append(row)
+    return np.concatenate([np.concatenate(row, axis=1) for row in strip], axis=0)
 
 
 def _mesh(body: geometry.BodyModel, params, root) -> np.ndarray:

@@ -25,7 +25,11 @@ from ._hmr import SMPLParams
 from ._phdt import params_to_joints
 from ._prior import PosePrior, lsgan_generator_loss
 
-__all__ = ["FrameTargets", "LossWeights", "frame_losses", "shape_consistency"]
+__all__ = ["PENETRATION_POINTS", "FrameTargets", "LossWeights", "frame_losses", "interpenetration", "penetration_depths",
+           "shape_consistency"]
+
+PENETRATION_POINTS = 128
+"""Vertices sampled from each mesh for the interpenetration terms (:func:`geometry.surface_points`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +48,9 @@ class LossWeights:
     """lambda_transl of Eq. 4.12, on the squared root distance in metres (the 3D terms' scale)."""
     delta: float = 1.0
     """Weight of each delta predictor's frame loss relative to the present frame's (Eq. 4.9: 1)."""
+    interpenetration: float = 1.0
+    """Weight of ``P_t`` (Eq. 4.42, metres summed over :data:`PENETRATION_POINTS` sampled vertices) in scenes of
+    several people (the thesis adds it unweighted)."""
 
 
 class FrameTargets(NamedTuple):
@@ -83,3 +90,37 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
 def shape_consistency(betas: Float[Array, "*b T S"], weights: LossWeights) -> Array:
     """lambda_const times the mean over consecutive frames of ``|beta_t - beta_{t+1}|^2``."""
     return weights.shape_consistency * jnp.mean(jnp.sum((betas[..., 1:, :] - betas[..., :-1, :]) ** 2, axis=-1))
+
+
+def penetration_depths(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"]
+                       ) -> Float[Array, "*b N T V"]:
+    """How deep (metres) each of :data:`PENETRATION_POINTS` sampled vertices of each person lies inside the other
+    people of its scene (``N`` people, axis -3), summed over them: ``sum_{n != o} rho^n(v)`` for ``v`` of person
+    ``o`` (Eq. 4.41), each body the union of its bone capsules (:func:`geometry.body_capsules`)."""
+    with jax.ensure_compile_time_eval():  # constants of the body model, also when traced inside a jitted loss
+        capsules = geometry.body_capsules(body)
+        vertices = geometry.surface_points(body, PENETRATION_POINTS)
+    rotations = geometry.rotation_6d_to_matrix(params.rot6d)
+    batch = rotations.shape[:-3]
+    flat_rotations, flat_betas = rotations.reshape(-1, 24, 3, 3), params.betas.reshape(-1, params.betas.shape[-1])
+    origin = jnp.zeros(3, rotations.dtype)
+    joints = jax.vmap(geometry.body_joints, in_axes=(None, 0, 0, None))(body, flat_rotations, flat_betas, origin)
+    points = jax.vmap(geometry.body_points, in_axes=(None, 0, 0, None, None))(body, flat_rotations, flat_betas,
+                                                                             origin, vertices)
+    shift = root.reshape(-1, 3) - joints[:, 0]  # the pelvis at the root, as params_to_joints places it
+    joints = (joints + shift[:, None]).reshape(*batch, 24, 3)
+    points = (points + shift[:, None]).reshape(*batch, len(vertices), 3)
+    people = root.shape[-3]
+    depth = jax.vmap(geometry.penetration, in_axes=(0, None, 0))
+    flat_points = points.reshape(-1, len(vertices), 3)
+    total = jnp.zeros(flat_points.shape[:-1], points.dtype)
+    for other in range(1, people):  # the body of person (o - other) mod N against the vertices of person o
+        total = total + depth(jnp.roll(joints, other, axis=-4).reshape(-1, 24, 3), capsules, flat_points)
+    return total.reshape(points.shape[:-1])
+
+
+def interpenetration(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"]
+                     ) -> Float[Array, "*b T"]:
+    """``P_t`` of Eq. 4.42 for each scene and frame: the depths of :func:`penetration_depths` summed over the
+    sampled vertices of every person (metres)."""
+    return jnp.sum(penetration_depths(body, params, root), axis=(-3, -1))

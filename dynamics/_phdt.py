@@ -25,7 +25,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 import geometry
 
@@ -144,9 +144,13 @@ class PHDT(nnx.Module):
         return self.joint_encoder(joints.reshape(*joints.shape[:-2], 72))
 
     def observe(self, body: geometry.BodyModel, features: Float[ArrayLike, "*b T D"], boxes: Float[ArrayLike, "*b T 4"],
-                K: Float[ArrayLike, "*b T 3 3"], key: jax.Array | None = None) -> Observation:
+                K: Float[ArrayLike, "*b T 3 3"], present: Bool[ArrayLike, "..."] | None = None,
+                key: jax.Array | None = None) -> Observation:
         """Reconstruct the observed frames of a track: ``Phi^``, ``Theta^``, ``gamma^`` (from the crop camera and
-        the square crop boxes) and the joint features ``Gamma^`` of the reconstructed camera-frame joints."""
+        the square crop boxes) and the joint features ``Gamma^`` of the reconstructed camera-frame joints.
+
+        ``present`` (which people of a scene exist) is accepted for the interface :class:`~dynamics.JAT` shares
+        and ignored: PHD+T treats every track on its own, so a scene's people axis is one more batch axis."""
         features, boxes, K = map(jnp.asarray, (features, boxes, K))
         frames = features.shape[:-1]
         if features.shape[-1] != self.config.feature_dim or boxes.shape != frames + (4,) or K.shape != frames + (3, 3):
@@ -158,9 +162,14 @@ class PHDT(nnx.Module):
         joints = params_to_joints(body, params, root)
         return Observation(temporal, params, root, self.encode_joints(joints))
 
-    def rollout(self, observed: Observation, horizon: int, key: jax.Array | None = None) -> Rollout:
+    def rollout(self, body: geometry.BodyModel, observed: Observation, horizon: int,
+                present: Bool[ArrayLike, "..."] | None = None, key: jax.Array | None = None) -> Rollout:
         """Predict ``horizon`` frames after ``observed`` (at least one receptive field of frames): ``f_AR`` on the
-        last 13 ``[Phi; Gamma]``, its output appended to the window, ``horizon`` times (no teacher forcing)."""
+        last 13 ``[Phi; Gamma]``, its output appended to the window, ``horizon`` times (no teacher forcing).
+
+        ``body`` and ``present`` are unused (the interface shared with :class:`~dynamics.JAT`): PHD+T's
+        autoregression stays in feature space and its tracks are independent."""
+        del body, present
         width = self.receptive_field
         if observed.temporal.shape[-2] < width:
             raise ValueError(f"rollout needs at least {width} observed frames, got {observed.temporal.shape[-2]}")

@@ -23,20 +23,25 @@ _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-pe
 
 
 def results_markdown(summary: Mapping[str, dict]) -> str:
-    """Per sample group: a conditioning table (Table 5.2's layout) and a prediction table at
-    :data:`HORIZONS` (Table 5.4's layout), every metric of :data:`~dynamics.METRICS`."""
+    """Per sample group: a conditioning table (Table 5.2's layout), one prediction table per metric of
+    :data:`~dynamics.METRICS` at :data:`HORIZONS` (Tables 5.4-5.11's), and for two-person samples the mean
+    interpenetration depth of every method and of the ground truth."""
+    horizon_header = ["| method | " + " | ".join(f"@{k}" for k in HORIZONS) + " |", "|---|" + "---|" * len(HORIZONS)]
     lines = []
     for group, result in summary.items():
-        lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} windows)", "", "### Conditioning", "",
+        lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
                   "| method | " + " | ".join(_NAMES.values()) + " |", "|---|" + "---|" * len(_NAMES)]
         for method, metrics in result["conditioning"].items():
             lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.1f}" for m in _NAMES) + " |")
-        lines += ["", "### Prediction (future frame)", "",
-                  "| method | " + " | ".join(f"{_NAMES[m]} @{k}" for m in _NAMES for k in HORIZONS) + " |",
-                  "|---|" + "---|" * (len(_NAMES) * len(HORIZONS))]
-        for method, metrics in result["prediction"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{metrics[m][k - 1]:.1f}" for m in _NAMES for k in HORIZONS)
-                         + " |")
+        for metric, title in _NAMES.items():
+            lines += ["", f"### Prediction: {title} at future frame", "", *horizon_header]
+            for method, metrics in result["prediction"].items():
+                lines.append(f"| {method} | " + " | ".join(f"{metrics[metric][k - 1]:.1f}" for k in HORIZONS) + " |")
+        if "penetration" in result:
+            lines += ["", "### Interpenetration: mean depth of a person's sampled vertices inside the other (mm) ↓",
+                      "", *horizon_header]
+            for method, values in result["penetration"].items():
+                lines.append(f"| {method} | " + " | ".join(f"{values[k - 1]:.2f}" for k in HORIZONS) + " |")
         lines.append("")
     return "\n".join(lines)
 

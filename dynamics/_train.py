@@ -48,11 +48,11 @@ import training
 from ._backbone import ResNetBackbone
 from ._data import DataConfig, Frames, build_frames, gather_windows, window_starts, without_crops
 from ._hmr import HMRHead, SMPLParams, mean_params
-from ._losses import FrameTargets, LossWeights, frame_losses, shape_consistency
+from ._losses import FrameTargets, LossWeights, frame_losses, interpenetration, shape_consistency
 from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
 from ._prior import PosePrior, lsgan_discriminator_loss
 
-__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "compute_features", "load_trained", "train"]
+__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "cached_features", "compute_features", "load_trained", "train"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,21 +176,27 @@ def _movie_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Ar
     return _total(terms), terms, params
 
 
-def _ar_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Array, Frames], key, prior):
+def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, prior):
+    """Eq. 4.12, and Eq. 4.44's interpenetration term when the batch holds scenes of several people: features
+    ``(B, T + H, D)`` (tracks) or ``(B, N, T + H, D)`` (scenes), ``rows`` alike."""
     features, rows = batch
-    T = config.observed
+    T, H = config.observed, config.horizon
+    frames = lambda tree, start, stop: jax.tree.map(  # noqa: E731  (the frame axis follows the batch axes)
+        lambda x: jax.lax.slice_in_dim(x, start, stop, axis=features.ndim - 2), tree)
     frozen = jax.lax.stop_gradient
-    observed = jax.tree.map(frozen, model.observe(body, features[:, :T], rows.boxes[:, :T], rows.K[:, :T]))
+    past = frames(rows, 0, T)
+    observed = jax.tree.map(frozen, model.observe(body, features[..., :T, :], past.boxes, past.K))
     # The conditioning networks' estimate of the future frames: the targets of lambda_temp and lambda_transl.
     reference = jax.tree.map(frozen, model.observe(body, features, rows.boxes, rows.K))
-    rollout = model.rollout(observed, config.horizon)
-    future = jax.tree.map(lambda x: x[:, T: T + config.horizon], rows)
-    terms = frame_losses(body, rollout.params, rollout.root, _targets(future), prior, config.losses)
-    terms["temporal"] = config.losses.temporal * jnp.mean(
-        (rollout.features - reference.temporal[:, T: T + config.horizon]) ** 2)
+    rollout = model.rollout(body, observed, H)
+    terms = frame_losses(body, rollout.params, rollout.root, _targets(frames(rows, T, T + H)), prior, config.losses)
+    terms["temporal"] = config.losses.temporal * jnp.mean((rollout.features - reference.temporal[..., T:, :]) ** 2)
     terms["translation"] = config.losses.translation * jnp.mean(
-        jnp.sum((rollout.root - reference.root[:, T: T + config.horizon]) ** 2, axis=-1))
+        jnp.sum((rollout.root - reference.root[..., T:, :]) ** 2, axis=-1))
     terms["shape_consistency"] = shape_consistency(rollout.params.betas, config.losses)
+    if features.ndim == 4 and features.shape[1] > 1 and config.losses.interpenetration:
+        terms["interpenetration"] = config.losses.interpenetration * jnp.mean(
+            interpenetration(body, rollout.params, rollout.root))
     return _total(terms), terms, rollout.params
 
 
@@ -311,9 +317,8 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
     image_model = _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective,
                              sample_rows, validate_image, body, resume=resume, log=log, progress=progress)
 
-    features = _cached_features(image_model.backbone, frames, config, cache_dir, "train", progress)
-    validation_features = _cached_features(image_model.backbone, validation, config, cache_dir, "validation",
-                                           progress)
+    features = cached_features(image_model.backbone, frames, config.data, cache_dir, progress)
+    validation_features = cached_features(image_model.backbone, validation, config.validation, cache_dir, progress)
     length = config.observed + config.horizon
     starts = window_starts(frames, length)
     validation_starts = window_starts(validation, length, stride=10)
@@ -343,7 +348,7 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
         features, rows = validation_windows
         T = config.observed
         observed = model.observe(body, jnp.asarray(features[:, :T]), rows.boxes[:, :T], rows.K[:, :T])
-        rollout = model.rollout(observed, config.horizon)
+        rollout = model.rollout(body, observed, config.horizon)
         future = jax.tree.map(lambda x: x[:, T:], rows)
         root_error = jnp.linalg.norm(rollout.root - jnp.asarray(future.root), axis=-1)
         return {"val_future_mpjpe_mm": _mpjpe_mm(body, rollout.params, future),
@@ -359,14 +364,18 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
     return image_model.backbone, phdt
 
 
-def _cached_features(backbone: ResNetBackbone, frames: Frames, config: TrainConfig, cache_dir: Path, name: str,
-                     progress: bool) -> np.ndarray:
-    # Features belong to this run's trained backbone: the name carries the run's config.
-    digest = hashlib.sha1(json.dumps(training.to_jsonable(config), sort_keys=True).encode()).hexdigest()[:16]
-    path = cache_dir / f"dynamics_features_{name}_{digest}.npy"
+def cached_features(backbone: ResNetBackbone, frames: Frames, data: DataConfig, cache_dir: Path,
+                    progress: bool = False) -> np.ndarray:
+    """:func:`compute_features` of ``frames`` (made from ``data``), cached in ``cache_dir`` under a hash of ``data``
+    and the backbone's parameters: features belong to one trained backbone."""
+    digest = hashlib.sha1(json.dumps(training.to_jsonable(data), sort_keys=True).encode())
+    for leaf in jax.tree.leaves(nnx.state(backbone, nnx.Param)):
+        digest.update(np.asarray(leaf).tobytes())
+    path = Path(cache_dir) / f"dynamics_features_{digest.hexdigest()[:16]}.npy"
     if path.is_file():
         return np.load(path)
     features = compute_features(backbone, frames.crops, progress=progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_suffix(".partial.npy")
     np.save(temporary, features)
     temporary.replace(path)

@@ -10,7 +10,8 @@ blend skinning over the 24-joint kinematic tree (:data:`SMPL24`).
     v        = sum_j W_vj (G_j (v_posed - J_j)) + translation
 
 Joints out are the posed joints ``G_j`` (SMPL's ``J_transformed``). Rotations come in as matrices; the thesis'
-6D rotations convert through :func:`rotation_6d_to_matrix`.
+6D rotations convert through :func:`rotation_6d_to_matrix`. :func:`body_joints` skips the skinning and
+:func:`body_points` skins only chosen vertices (the same code path as :func:`body_forward`).
 
 Two sources of a :class:`BodyModel`:
 
@@ -40,7 +41,10 @@ from ._kinematics import forward_kinematics
 from ._rotations import _as_float
 from ._skeleton import SMPL24, Skeleton
 
-__all__ = ["BodyModel", "BodyOutput", "body_forward", "body_joints", "load_body_model", "stand_in_body_model"]
+__all__ = [
+    "BodyModel", "BodyOutput", "body_forward", "body_joints", "body_points", "load_body_model",
+    "stand_in_body_model",
+]
 
 
 @jax.tree_util.register_dataclass
@@ -87,6 +91,30 @@ def _pose_skeleton(model: BodyModel, rotations: Array, rest_joints: Array) -> tu
     return forward_kinematics(rotations, offsets, rest_joints[model.skeleton.root], model.skeleton)
 
 
+def _shaped_vertices(model: BodyModel, betas: Array) -> Array:
+    return model.v_template + jnp.einsum("vcs,s->vc", model.shapedirs, betas)
+
+
+def _pose_vertices(model: BodyModel, rotations, betas, translation, rows: Array | None) -> BodyOutput:
+    """SMPL's forward function (module docstring) for the vertices ``rows`` (None: all of them): shared by
+    :func:`body_forward` and :func:`body_points`. The rest joints regress the whole shaped mesh either way; the
+    pose correctives and the skinning touch only the chosen rows."""
+    rotations, betas, translation = _check_body_inputs(model, rotations, betas, translation)
+    v_shaped = _shaped_vertices(model, betas)
+    rest_joints = model.J_regressor @ v_shaped
+    posed_joints, global_rotations = _pose_skeleton(model, rotations, rest_joints)
+    posedirs, weights = model.posedirs, model.weights
+    if rows is not None:
+        v_shaped, posedirs, weights = v_shaped[rows], posedirs[rows], weights[rows]
+    pose_features = (rotations[1:] - jnp.eye(3, dtype=rotations.dtype)[None]).reshape(-1)
+    v_posed = v_shaped + jnp.einsum("vcp,p->vc", posedirs, pose_features)
+    # Skin with the blended transforms v -> R_j (v - J_j) + G_j.
+    blended_R = jnp.einsum("vj,jab->vab", weights, global_rotations)
+    blended_t = weights @ (posed_joints - jnp.einsum("jab,jb->ja", global_rotations, rest_joints))
+    vertices = jnp.einsum("vab,vb->va", blended_R, v_posed) + blended_t
+    return BodyOutput(vertices + translation[None], posed_joints + translation[None])
+
+
 def body_forward(
     model: BodyModel,
     rotations: Float[ArrayLike, "joints 3 3"],
@@ -101,17 +129,23 @@ def body_forward(
         betas: shape coefficients, as many as ``model.shapedirs`` has directions.
         translation: added to every vertex and joint (metres).
     """
-    rotations, betas, translation = _check_body_inputs(model, rotations, betas, translation)
-    v_shaped = model.v_template + jnp.einsum("vcs,s->vc", model.shapedirs, betas)
-    rest_joints = model.J_regressor @ v_shaped
-    pose_features = (rotations[1:] - jnp.eye(3, dtype=rotations.dtype)[None]).reshape(-1)
-    v_posed = v_shaped + jnp.einsum("vcp,p->vc", model.posedirs, pose_features)
-    posed_joints, global_rotations = _pose_skeleton(model, rotations, rest_joints)
-    # Skin with the blended transforms v -> R_j (v - J_j) + G_j.
-    blended_R = jnp.einsum("vj,jab->vab", model.weights, global_rotations)
-    blended_t = model.weights @ (posed_joints - jnp.einsum("jab,jb->ja", global_rotations, rest_joints))
-    vertices = jnp.einsum("vab,vb->va", blended_R, v_posed) + blended_t
-    return BodyOutput(vertices + translation[None], posed_joints + translation[None])
+    return _pose_vertices(model, rotations, betas, translation, None)
+
+
+def body_points(
+    model: BodyModel,
+    rotations: Float[ArrayLike, "joints 3 3"],
+    betas: Float[ArrayLike, "shapes"],
+    translation: Float[ArrayLike, "3"],
+    vertices: Int[ArrayLike, "V"],
+) -> Float[Array, "V 3"]:
+    """``body_forward(...).vertices[vertices]`` without posing the rest of the mesh: a loss over a few hundred
+    sampled vertices (e.g. :func:`surface_points`) pays for those, plus the joint regression."""
+    if not isinstance(vertices, jax.core.Tracer):
+        chosen, count = np.asarray(vertices), model.v_template.shape[0]
+        if chosen.size and (chosen.min() < 0 or chosen.max() >= count):
+            raise ValueError(f"vertex indices must lie in [0, {count}), got {chosen.min()}..{chosen.max()}")
+    return _pose_vertices(model, rotations, betas, translation, jnp.asarray(vertices)).vertices
 
 
 def body_joints(
@@ -120,12 +154,10 @@ def body_joints(
     betas: Float[ArrayLike, "shapes"],
     translation: Float[ArrayLike, "3"],
 ) -> Float[Array, "joints 3"]:
-    """``body_forward(...).joints`` without skinning the vertices: the rest joints are linear in ``betas``
-    (regress the template and the shape directions once), so a training loss over thousands of frames costs
-    joints, not meshes."""
+    """``body_forward(...).joints`` without skinning the vertices, so a training loss over thousands of frames
+    costs joints (and one regression of the shaped mesh), not meshes."""
     rotations, betas, translation = _check_body_inputs(model, rotations, betas, translation)
-    rest_joints = model.J_regressor @ model.v_template + jnp.einsum(
-        "jv,vcs,s->jc", model.J_regressor, model.shapedirs, betas)
+    rest_joints = model.J_regressor @ _shaped_vertices(model, betas)
     return _pose_skeleton(model, rotations, rest_joints)[0] + translation[None]
 
 

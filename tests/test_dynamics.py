@@ -108,9 +108,9 @@ def test_observation_is_causal_and_rollout_is_jittable():
     assert_allclose(later.root[:, :15], observed.root[:, :15], atol=1e-12)
     assert not np.allclose(later.params.rot6d[:, 15:], observed.params.rot6d[:, 15:])
 
-    eager = model.rollout(observed, 6)
+    eager = model.rollout(BODY, observed, 6)
     graphdef, state = nnx.split(model)
-    jitted = jax.jit(lambda state, observed: nnx.merge(graphdef, state).rollout(observed, 6))(state, observed)
+    jitted = jax.jit(lambda state, observed: nnx.merge(graphdef, state).rollout(BODY, observed, 6))(state, observed)
     assert eager.params.rot6d.shape == (2, 6, 24, 6) and eager.root.shape == (2, 6, 3)
     for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
         assert_allclose(a, b, rtol=1e-9, atol=1e-9)
@@ -119,7 +119,7 @@ def test_observation_is_causal_and_rollout_is_jittable():
     with pytest.raises(ValueError, match=f"need features \\(\\*b, T, {CONFIG.feature_dim}\\)"):
         model.observe(BODY, features[..., :-1], boxes, Ks)
     with pytest.raises(ValueError, match="at least 13 observed frames"):
-        model.rollout(jax.tree.map(lambda x: x[:, :12], observed), 3)
+        model.rollout(BODY, jax.tree.map(lambda x: x[:, :12], observed), 3)
 
 
 def test_zero_motion_repeats_the_last_observed_frame():
@@ -136,17 +136,22 @@ def test_zero_motion_repeats_the_last_observed_frame():
 
 @pytest.mark.slow
 def test_experiment_on_the_shipped_models_writes_every_output(tmp_path):
-    from dynamics import SHIPPED_MODEL, DataConfig, EvalConfig, load_trained, run_experiment
+    from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, load_trained, load_transformers,
+                          run_experiment)
 
     backbone, model = load_trained(SHIPPED_MODEL)
+    mpjat = load_transformers(SHIPPED_TRANSFORMERS)["MPJAT"]
     config = EvalConfig(data=DataConfig(clips=("60_05_61_05_salsa",), renders=1, augmented_epochs=1, jitter=False,
                                         flip=False, seed=2_000), stride=120)
-    results = run_experiment(tmp_path, backbone, model, BODY, config, progress=False)
+    results = run_experiment(tmp_path, backbone, {"PHD+T": model, "MPJAT": mpjat}, BODY, config, progress=False)
     two_person = results["summary"]["two_person"]
     assert two_person["samples"] == 2 * 4  # two people, windows starting at frames 0, 120, 240, 360
-    for method in ("PHD+T", "ZeroMotion"):
+    for method in ("PHD+T", "MPJAT", "ZeroMotion"):
         assert len(two_person["prediction"][method]["mpjpe"]) == config.horizon
         assert all(np.isfinite(two_person["prediction"][method][m]).all() for m in ("pa_mpjpe", "mpjpe", "pck", "root"))
+        assert np.all(np.asarray(two_person["penetration"][method]) >= 0)
+    assert "ground truth" in two_person["penetration"]
     for name in ("results.json", "results.md", "prediction_two_person.png", "strip.png"):
         assert (tmp_path / name).is_file()
-    assert "| ZeroMotion |" in (tmp_path / "results.md").read_text()
+    markdown = (tmp_path / "results.md").read_text()
+    assert "| ZeroMotion |" in markdown and "| MPJAT |" in markdown and "Interpenetration" in markdown
