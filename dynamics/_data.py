@@ -33,7 +33,7 @@ import mocap
 import training
 
 __all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "DataConfig", "Frames",
-           "build_frames", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
+           "build_frames", "check_validation_apart", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
            "window_starts", "without_crops"]
 
 Columns = TypeVar("Columns", bound=Any)
@@ -78,6 +78,13 @@ class DataConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.box_margin < 1.0:
             raise ValueError(f"box_margin must be >= 1 (a crop holds its whole box), got {self.box_margin}")
+
+
+def check_validation_apart(data: DataConfig, validation: DataConfig) -> None:
+    """Refuse a validation set that renders a training clip with training's seed (the same videos)."""
+    shared = set(data.clips) & set(validation.clips)
+    if shared and data.seed == validation.seed:
+        raise ValueError(f"validation renders of {sorted(shared)} must use another seed than training's")
 
 
 class Frames(NamedTuple):

@@ -46,7 +46,8 @@ import geometry
 import training
 
 from ._backbone import ResNetBackbone
-from ._data import DataConfig, Frames, build_frames, gather_windows, window_starts, without_crops
+from ._data import (DataConfig, Frames, build_frames, check_validation_apart, gather_windows, window_starts,
+                    without_crops)
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._losses import FrameTargets, LossWeights, frame_losses, interpenetration, shape_consistency
 from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
@@ -112,9 +113,7 @@ class TrainConfig:
                              f"{self.model.feature_dim}")
         if self.observed < self.model.tcn_blocks * 2 * (self.model.tcn_kernel - 1) + 1:
             raise ValueError(f"observe at least one receptive field of frames, got {self.observed}")
-        shared = set(self.data.clips) & set(self.validation.clips)
-        if shared and self.data.seed == self.validation.seed:
-            raise ValueError(f"validation renders of {sorted(shared)} must use another seed than training's")
+        check_validation_apart(self.data, self.validation)
 
 
 class TrainState(NamedTuple):

@@ -32,7 +32,8 @@ import geometry
 import training
 
 from ._backbone import ResNetBackbone
-from ._data import DataConfig, Frames, build_frames, scene_windows, window_starts, without_crops
+from ._data import (DataConfig, Frames, build_frames, check_validation_apart, scene_windows, window_starts,
+                    without_crops)
 from ._jat import JAT, JATConfig
 from ._losses import LossWeights, frame_losses, interpenetration, shape_consistency
 from ._phdt import crop_roots, params_to_joints
@@ -78,9 +79,7 @@ class TransformerTrainConfig:
             raise ValueError(f"observed and horizon must be >= 1, got {self.observed} and {self.horizon}")
         if not 0.0 <= self.two_person_fraction <= 1.0:
             raise ValueError(f"two_person_fraction must be in [0, 1], got {self.two_person_fraction}")
-        shared = set(self.data.clips) & set(self.validation.clips)
-        if shared and self.data.seed == self.validation.seed:
-            raise ValueError(f"validation renders of {sorted(shared)} must use another seed than training's")
+        check_validation_apart(self.data, self.validation)
 
 
 def as_multi_person(model: JAT, config: JATConfig) -> JAT:
