@@ -1,9 +1,10 @@
 """Multi-person 3D pose on Shelf with JCSAT (the project's main job).
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
-        [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--train [--resume] [--steps S]] [--seed S]
+        [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K]
+        [--train [--config cpu|gpu] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
-With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_cpu``, trained only on
+With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide``, trained only on
 synthetic scenes) beside the learning-free geometric baseline. With Shelf data (``--data-root`` or
 ``MVMOCAP_DATA_ROOT`` holding ``shelf/``) it infers on the real test frames 300..600 with causal windows
 of N = 10 frames and prints PCP (VoxelPose, JCSAT and 4D-association protocols), precision/recall
@@ -43,7 +44,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "geometric: Joint Cloud -> K-Means persons -> weighted medoid + re-triangulation only")
     parser.add_argument("--model", type=Path, default=None,
                         help="a model folder written by training (<workdir>/model); default: the shipped "
-                             "jcsat/assets/shelf_cpu")
+                             "jcsat/assets/shelf_wide")
     parser.add_argument("--data-root", type=Path, default=os.environ.get("MVMOCAP_DATA_ROOT"),
                         help="folder containing shelf/ (actorsGT.mat, the OpenPose detections, 4d_association/); "
                              "default $MVMOCAP_DATA_ROOT; without it a synthetic Shelf-rig scene is used and the "
@@ -62,8 +63,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--train", action="store_true",
                         help="train a model from scratch into OUT/train on synthetic scenes, then evaluate it")
     parser.add_argument("--resume", action="store_true", help="with --train: continue from OUT/train's last checkpoint")
+    parser.add_argument("--config", choices=sorted(jcsat.TRAIN_CONFIGS), default="cpu",
+                        help="with --train: the named run in jcsat.TRAIN_CONFIGS; cpu: the 'cpu' model, 2400 steps "
+                             "of 8 windows on 16 scenes (the 2-core CPU's run); gpu: the 'cpu_wide' model, 6000 "
+                             "steps of 64 windows on 48 scenes (default: %(default)s)")
     parser.add_argument("--steps", type=int, default=None,
-                        help="with --train: optimisation steps (default: jcsat.TrainConfig's)")
+                        help="with --train: optimisation steps (default: the --config run's)")
+    parser.add_argument("--data-workers", type=int, default=1,
+                        help="with --train: processes that build the synthetic scenes when they are not cached "
+                             "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the synthetic scene, the K-Means restarts and training (default: %(default)s)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
@@ -71,14 +79,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def _train(args: argparse.Namespace) -> Path:
-    config = jcsat.TrainConfig(seed=args.seed)
+    config = dataclasses.replace(jcsat.TRAIN_CONFIGS[args.config], seed=args.seed)
     if args.quick:
         config = dataclasses.replace(config, steps=300, warmup_steps=30, checkpoint_interval=100,
                                      validation_interval=100, data=dataclasses.replace(config.data, num_scenes=4))
     if args.steps is not None:
         config = dataclasses.replace(config, steps=args.steps, warmup_steps=min(config.warmup_steps, args.steps))
     workdir = args.out / "train"
-    jcsat.train(config, workdir, resume=args.resume)
+    jcsat.train(config, workdir, resume=args.resume, data_workers=args.data_workers)
     return workdir / "model"
 
 

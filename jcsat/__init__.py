@@ -73,6 +73,7 @@ from ._train import learning_rate_schedule as learning_rate_schedule
 from ._train import load_model as load_model
 from ._train import make_optimizer as make_optimizer
 from ._train import train as train
+from ._train import TRAIN_CONFIGS as TRAIN_CONFIGS
 from ._train import train_step as train_step
 from ._train import TrainConfig as TrainConfig
 from ._train import TrainState as TrainState
@@ -88,7 +89,7 @@ __all__ = [
     "plot_frame", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
     "reject_temporal_outliers", "run_geometric_baseline", "run_shelf_experiment", "sample_batch",
     "scene_windows", "ShelfExperimentConfig", "ShelfExperimentResult", "SHIPPED_MODEL", "sinkhorn_plan",
-    "synthetic_validation", "track_centres", "train", "TRAIN_CLIPS", "train_step", "TrainConfig", "TrainState",
+    "synthetic_validation", "track_centres", "train", "TRAIN_CLIPS", "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
     "triangulate_candidate_pair", "VALIDATION_CLIPS", "view_pairs", "window_batch", "window_frames",
     "WindowDataset",
 ]

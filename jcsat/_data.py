@@ -22,7 +22,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import multiprocessing
 import os
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
@@ -205,23 +207,28 @@ def _concatenate(parts: list[WindowDataset]) -> WindowDataset:
     return WindowDataset(**fields)
 
 
-def build_dataset(config: DataConfig, cache_dir: str | Path | None = None) -> WindowDataset:
+def build_dataset(config: DataConfig, cache_dir: str | Path | None = None, *, workers: int = 1) -> WindowDataset:
     """All windows of ``config.num_scenes`` seeded scenes, cached as ``<cache_dir>/windows_<key>.npz``.
 
     The cache file name is a hash of the whole config, so changing any field builds anew; the file is
     written under a temporary name and renamed, so an interrupted build leaves no partial cache.
+    ``workers > 1`` builds scenes in that many CPU-only processes (a scene takes seconds and scenes are
+    independent); the windows are the same as a one-process build's, in the same order.
     """
     path = None if cache_dir is None else Path(cache_dir) / f"windows_{config.cache_key()}.npz"
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return WindowDataset(**{name: stored[name] for name in WindowDataset._fields})
-    clips = [mocap.load_clip(name) for name in config.clips]
-    parts = []
-    for index, seed in enumerate(config.seeds):
-        key = jax.random.key(seed)
-        scene = mocap.synthesize_scene(key, mocap.shelf_cameras(), num_people=config.num_people,
-                                       num_frames=config.num_frames, clips=clips)
-        parts.append(scene_windows(scene, config, key, index))
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    jobs = [(config, seed, index) for index, seed in enumerate(config.seeds)]
+    if workers == 1 or len(jobs) == 1:
+        parts = [_seeded_scene_windows(*job) for job in jobs]
+    else:
+        context = multiprocessing.get_context("spawn")  # a forked JAX runtime is not safe
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=context, initializer=_cpu_worker,
+                                 initargs=(bool(jax.config.jax_enable_x64),)) as pool:
+            parts = list(pool.map(_seeded_scene_windows, *zip(*jobs)))
     dataset = _concatenate(parts)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -229,6 +236,20 @@ def build_dataset(config: DataConfig, cache_dir: str | Path | None = None) -> Wi
         np.savez_compressed(partial, **dataset._asdict())
         os.replace(partial, path)
     return dataset
+
+
+def _seeded_scene_windows(config: DataConfig, seed: int, index: int) -> WindowDataset:
+    clips = [mocap.load_clip(name) for name in config.clips]
+    key = jax.random.key(seed)
+    scene = mocap.synthesize_scene(key, mocap.shelf_cameras(), num_people=config.num_people,
+                                   num_frames=config.num_frames, clips=clips)
+    return scene_windows(scene, config, key, index)
+
+
+def _cpu_worker(enable_x64: bool) -> None:
+    """Scene-building processes stay off the accelerator the parent trains on, with the parent's precision."""
+    jax.config.update("jax_platforms", "cpu")
+    jax.config.update("jax_enable_x64", enable_x64)
 
 
 def window_batch(

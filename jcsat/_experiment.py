@@ -40,7 +40,7 @@ METHODS: tuple[str, ...] = ("jcsat", "geometric")
 """``jcsat``: the model on the Joint Cloud of the baseline's tracks (scored beside the baseline);
 ``geometric``: the learning-free baseline alone."""
 
-SHIPPED_MODEL = Path(__file__).parent / "assets" / "shelf_cpu"
+SHIPPED_MODEL = Path(__file__).parent / "assets" / "shelf_wide"
 """The trained default model (``config.json`` + ``state.npz``; the README has the command that made it)."""
 
 _QUICK_REAL_FRAMES = 60

@@ -43,7 +43,7 @@ from ._model import CONFIGS, JCSAT, JCSATConfig
 
 __all__ = [
     "TrainConfig", "TrainState", "init_state", "learning_rate_schedule", "make_optimizer", "train_step", "train",
-    "load_model",
+    "load_model", "TRAIN_CONFIGS",
 ]
 
 
@@ -58,8 +58,8 @@ class TrainConfig:
     peak_lr: float = 1e-3
     warmup_steps: int = 100
     """Linear warm-up from 0 to ``peak_lr``; a cosine decay to ``end_lr`` follows until ``steps``.
-    These defaults are the shipped CPU model's run (36 minutes on 2 CPU cores): a short schedule
-    with the usual small-transformer rate. The official code trains 'medium' with 1.5e-4 for 500
+    These defaults are the ``"cpu"`` run of :data:`TRAIN_CONFIGS` (36 minutes on 2 CPU cores): a short
+    schedule with the usual small-transformer rate. The official code trains 'medium' with 1.5e-4 for 500
     epochs (the paper's "beginning with 1e-5" is the cosine's end), a GPU-scale budget."""
     end_lr: float = 1e-5
     weight_decay: float = 0.05
@@ -95,6 +95,18 @@ class TrainConfig:
         shared_seeds = set(self.data.seeds) & set(self.validation_data.seeds)
         if shared_seeds:
             raise ValueError(f"training and validation scenes share seeds {sorted(shared_seeds)[:5]}")
+
+
+TRAIN_CONFIGS: dict[str, TrainConfig] = {
+    "cpu": TrainConfig(),
+    # The shipped model's run: the wider model, 3x the scenes, 8x the batch, 2.5x the steps (5 minutes of steps on
+    # one H100, jcsat/assets/README.md; the scenes are built in parallel processes with ``--data-workers``).
+    "gpu": TrainConfig(
+        model="cpu_wide", batch_size=64, steps=6_000, warmup_steps=300, checkpoint_interval=1_000,
+        validation_interval=1_000, log_interval=100, data=DataConfig(num_scenes=48),
+    ),
+}
+"""Named training runs (``python -m experiments.shelf_jcsat --train --config NAME``)."""
 
 
 class TrainState(NamedTuple):
@@ -203,18 +215,21 @@ def train(
     resume: bool,
     log: Callable[[dict], None] = lambda record: None,
     progress: bool = True,
+    data_workers: int = 1,
 ) -> JCSAT:
     """Train per ``config`` in ``workdir`` and return the final model (see the module docstring for the files).
 
     ``resume=True`` continues from the latest checkpoint in ``workdir`` (refusing a different
     config); ``resume=False`` refuses a ``workdir`` that already has checkpoints. ``log`` receives
-    every record written to ``log.jsonl``; ``progress`` shows a tqdm bar.
+    every record written to ``log.jsonl``; ``progress`` shows a tqdm bar; ``data_workers`` processes build
+    the scenes of a dataset that is not cached yet (the windows do not depend on it).
     """
     replicated, batch_sharding = training.data_parallel_shardings(config.batch_size)
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
-    train_data = jax.device_put(build_dataset(config.data, cache_dir), replicated)
-    validation_data = jax.device_put(build_dataset(config.validation_data, cache_dir), replicated)
+    train_data = jax.device_put(build_dataset(config.data, cache_dir, workers=data_workers), replicated)
+    validation_data = jax.device_put(build_dataset(config.validation_data, cache_dir, workers=data_workers),
+                                     replicated)
     if train_data.num_windows == 0 or validation_data.num_windows == 0:
         raise ValueError("no training or validation windows: more scenes or frames are needed")
 

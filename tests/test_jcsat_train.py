@@ -215,6 +215,17 @@ def _fixed_batch_steps(config: TrainConfig, dataset, num_steps: int):
     return state, losses
 
 
+def test_parallel_scene_build_matches_one_process(dataset):
+    two = build_dataset(dataclasses.replace(TRAIN_DATA, num_scenes=2), workers=2)
+    first = two.scene == 0
+    assert set(np.unique(two.scene)) == {0, 1} and two.projections.shape[0] == 2
+    for name in ("points", "mask", "centre", "target", "person", "frame"):
+        assert_array_equal(getattr(two, name)[first], getattr(dataset, name), err_msg=name)
+    assert_array_equal(two.window_start[: dataset.num_windows], dataset.window_start)
+    with pytest.raises(ValueError, match="workers"):
+        build_dataset(TRAIN_DATA, workers=0)
+
+
 def test_steps_reduce_loss_on_a_fixed_batch(dataset, cache_dir):
     # The config of the runs below: the step compiled here is reused by them.
     state, losses = _fixed_batch_steps(_config(cache_dir=str(cache_dir)), dataset, 12)
