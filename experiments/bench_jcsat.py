@@ -5,11 +5,13 @@
 Runs the test-time pipeline (Joint Cloud, K-Means persons, tracks: :func:`jcsat.run_geometric_baseline`)
 on ``--frames`` Shelf frames (the real OpenPose detections when the data folder exists, else a
 synthetic 4-person Shelf-rig scene), then times the model on every (track, frame) window the main job
-predicts, with :func:`jcsat.predict_shelf15` (the window's last frame only), after one compiling call,
+predicts, with :func:`jcsat.predict_shelf15`, after one compiling call,
 best of ``--repeats``. Reports windows/s and frames/s (windows per frame = tracks output per frame)
-for the shipped model and for a randomly initialised Medium model (same input, ``--medium-frames``
-frames: it was about 500 times slower on CPU here), the pipeline's own per-frame seconds (Joint Cloud,
-clustering, tracking, model tensor; second run), and the end-to-end frames/s of the shipped configuration.
+for the shipped model with the main job's aggregate and window stride (``shipped``; ``"mean"`` runs the
+full outputs of about 1/stride windows per frame) and with the causal ``"last"`` (``shipped_causal``), and for a randomly initialised Medium
+model (``"last"``, same input, ``--medium-frames`` frames: it was about 500 times slower on CPU here), the
+pipeline's own per-frame seconds (Joint Cloud, clustering, tracking, model tensor; second run), and the
+end-to-end frames/s of the shipped configuration.
 """
 
 from __future__ import annotations
@@ -67,12 +69,17 @@ def main(argv: list[str] | None = None) -> int:
         "jax": jax.__version__, "backend": jax.default_backend(), "source": source, "frames": frames,
         "windows_per_frame": round(len(position) / frames, 3),
     }
-    models = {"shipped": (jcsat.load_model(args.model), frames),
-              "medium": (jcsat.JCSAT(jcsat.CONFIGS["medium"], rngs=nnx.Rngs(0)), min(args.medium_frames, frames))}
-    for name, (model, timed_frames) in models.items():
+    shipped = jcsat.load_model(args.model)
+    default = jcsat.ShelfExperimentConfig()
+    runs = {"shipped": (shipped, frames, default.aggregate, default.window_stride),
+            "shipped_causal": (shipped, frames, "last", 1),
+            "medium": (jcsat.JCSAT(jcsat.CONFIGS["medium"], rngs=nnx.Rngs(0)), min(args.medium_frames, frames), "last", 1)}
+    result["shipped_aggregate"], result["shipped_window_stride"] = default.aggregate, default.window_stride
+    for name, (model, timed_frames, aggregate, stride) in runs.items():
         chosen = position < timed_frames
         seconds = best_time(lambda: jcsat.predict_shelf15(model, baseline.person_cloud, rows.person[chosen],
-                                                              position[chosen]), args.repeats)
+                                                              position[chosen], aggregate=aggregate, stride=stride),
+                            args.repeats)
         result[f"{name}_parameters"] = jcsat.parameter_count(model)
         result[f"{name}_windows_per_s"] = round(int(chosen.sum()) / seconds, 2)
         result[f"{name}_frames_per_s"] = round(timed_frames / seconds, 2)

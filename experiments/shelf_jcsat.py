@@ -1,13 +1,13 @@
 """Multi-person 3D pose on Shelf with JCSAT (the project's main job).
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
-        [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K]
+        [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--aggregate mean|last] [--window-stride S]
         [--train [--config cpu|gpu] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
 With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide``, trained only on
 synthetic scenes) beside the learning-free geometric baseline. With Shelf data (``--data-root`` or
-``MVMOCAP_DATA_ROOT`` holding ``shelf/``) it infers on the real test frames 300..600 with causal windows
-of N = 10 frames and prints PCP (VoxelPose, JCSAT and 4D-association protocols), precision/recall
+``MVMOCAP_DATA_ROOT`` holding ``shelf/``) it infers on the real test frames 300..600 with sliding windows
+of N = 10 frames (``--aggregate``) and prints PCP (VoxelPose, JCSAT and 4D-association protocols), precision/recall
 and MPJPE next to the 4D-association output scored by the same evaluator; without data it runs on a
 seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, ``log.jsonl``,
 ``predictions.jsonl`` (``mocap`` prediction format, ``python -m experiments.shelf_eval --pred``),
@@ -74,6 +74,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the synthetic scene, the K-Means restarts and training (default: %(default)s)")
+    parser.add_argument("--aggregate", choices=jcsat.AGGREGATES, default=jcsat.ShelfExperimentConfig.aggregate,
+                        help="mean: each frame's pose is the mean over every window that contains it (offline; chosen "
+                             "on synthetic validation, experiments.shelf_validate --jcsat); last: the causal window's "
+                             "last frame (online) (default: %(default)s)")
+    parser.add_argument("--window-stride", type=int, default=jcsat.ShelfExperimentConfig.window_stride,
+                        help="with --aggregate mean: average the windows ending on every this many frames "
+                             "(default: %(default)s)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
     return parser.parse_args(argv)
 
@@ -101,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
         baseline=dataclasses.replace(jcsat.BaselineConfig(), seed=args.seed),
         views=None if args.views is None else tuple(args.views),
-        perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed,
+        perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed, aggregate=args.aggregate,
+        window_stride=args.window_stride,
     )
     log_path = args.out / "log.jsonl"
     log_path.write_text("")

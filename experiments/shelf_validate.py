@@ -1,11 +1,13 @@
 """Choose the geometric baseline's settings on SYNTHETIC Shelf-rig validation scenes (never on Shelf 300-600).
 
-    .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90] [--json]
+    .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90] [--jcsat] [--json]
 
 Scores a grid of :class:`jcsat.BaselineConfig` variants (the temporal outlier filter's window and
 distance; distance 0 is a plain median filter) with :func:`jcsat.synthetic_validation` and prints one row per
 setting: PCP (VoxelPose protocol, all synthetic people) per seed and their mean. The defaults of
-:class:`jcsat.BaselineConfig` are the best row of this table. About 2 minutes on 2 CPU cores.
+:class:`jcsat.BaselineConfig` are the best row of this table. About 2 minutes on 2 CPU cores. ``--jcsat`` adds
+the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's
+default (``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
 """
 
 from __future__ import annotations
@@ -39,10 +41,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="one synthetic scene per seed (default: %(default)s; the main job uses seed 0)")
     parser.add_argument("--people", type=int, default=4, help="people per scene (default: %(default)s)")
     parser.add_argument("--frames", type=int, default=90, help="frames per scene (default: %(default)s)")
+    parser.add_argument("--jcsat", action="store_true",
+                        help="also score the shipped JCSAT model with each aggregate (last, mean)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames)
+    model = jcsat.load_model(jcsat.SHIPPED_MODEL) if args.jcsat else None
+    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames, model=model)
     if args.json:
         print(json.dumps(table))
         return 0

@@ -38,6 +38,7 @@ from ._geometric import geometric_poses as geometric_poses
 from ._geometric import reject_temporal_outliers as reject_temporal_outliers
 from ._geometric import GeometricConfig as GeometricConfig
 from ._geometric import GeometricPoses as GeometricPoses
+from ._inference import AGGREGATES as AGGREGATES
 from ._inference import filled_centres as filled_centres
 from ._inference import predict_shelf15 as predict_shelf15
 from ._joint_cloud import build_joint_cloud as build_joint_cloud
@@ -79,7 +80,7 @@ from ._train import TrainConfig as TrainConfig
 from ._train import TrainState as TrainState
 
 __all__ = [
-    "aggregation_variant", "BaselineConfig", "BaselineResult", "Batch", "BODY25_JOINT_RADIUS", "bone_losses",
+    "AGGREGATES", "aggregation_variant", "BaselineConfig", "BaselineResult", "Batch", "BODY25_JOINT_RADIUS", "bone_losses",
     "build_dataset", "build_joint_cloud", "cluster_frames", "ClusterConfig", "CONFIGS", "consensus_joint",
     "DataConfig", "fill_missing", "filled_centres", "FrameClusters", "geometric_poses", "GeometricConfig",
     "GeometricPoses", "init_state", "JCSAT", "jcsat_loss", "JCSATConfig", "joint_cloud_frame", "JointCloud",

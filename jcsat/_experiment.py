@@ -7,7 +7,7 @@ the same evaluator. Without data: a seeded synthetic scene with the Shelf rig an
 detector (:func:`mocap.synthesize_scene`), scored against its own ground truth, labelled synthetic.
 
 Method ``jcsat`` runs the geometric pipeline first (its tracks are the persons of Algorithm 1) and
-then the model on each track's causal windows (:func:`~jcsat.predict_shelf15`); both are scored, so
+then the model on each track's windows (:func:`~jcsat.predict_shelf15`, ``aggregate``); both are scored, so
 the table has the model, the baseline and (on real data) the 4D-association output. ``views`` keeps
 a subset of the cameras (the others see nothing: paper Table 6); ``perturb_cameras`` builds the Joint
 Cloud with K cameras' calibration perturbed as in Table 8 (:func:`geometry.perturb_extrinsics_bounded`).
@@ -29,7 +29,8 @@ import mocap
 
 import geometry
 
-from ._inference import predict_shelf15
+from ._inference import AGGREGATES, predict_shelf15
+from ._model import JCSAT
 from ._pipeline import BaselineConfig, BaselineResult, run_geometric_baseline
 from ._train import load_model
 
@@ -69,8 +70,20 @@ class ShelfExperimentConfig:
     perturb_cameras: int = 0
     """Number of cameras (the first K kept ones) whose calibration is perturbed for the Joint Cloud."""
     perturb_seed: int = 0
+    aggregate: str = "mean"
+    """How the model's windows become one pose per frame (:data:`~jcsat.AGGREGATES`): ``"mean"`` (offline, the
+    windows containing the frame), the better on synthetic validation (``python -m experiments.shelf_validate
+    --jcsat``), or ``"last"`` (causal, online)."""
+    window_stride: int = 3
+    """``"mean"``'s window grid (:func:`~jcsat.predict_shelf15`'s ``stride``): strides 1, 2 and 3 score 97.09,
+    97.03 and 97.05 % on synthetic validation (``shelf_validate --jcsat``, 2026-11-23), and 3 runs a third of
+    the windows, for the frame rate (``bench_jcsat``)."""
 
     def __post_init__(self) -> None:
+        if self.window_stride < 1:
+            raise ValueError(f"window_stride must be >= 1, got {self.window_stride}")
+        if self.aggregate not in AGGREGATES:
+            raise ValueError(f"aggregate must be one of {AGGREGATES}, got {self.aggregate!r}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if self.views is not None and len(set(self.views)) < 2:
@@ -188,7 +201,8 @@ def run_shelf_experiment(
         rows = result.predictions
         position = np.searchsorted(frame_indices, rows.frame)
         start = time.perf_counter()
-        poses = predict_shelf15(model, result.person_cloud, rows.person, position)
+        poses = predict_shelf15(model, result.person_cloud, rows.person, position, aggregate=config.aggregate,
+                                stride=config.window_stride)
         seconds = time.perf_counter() - start
         result.seconds["jcsat"] = seconds
         compared = {"jcsat": mocap.PosePredictions.create(rows.frame, rows.person, poses, score=rows.score), **compared}
@@ -252,12 +266,17 @@ def _plot_frame_choice(result: BaselineResult, annotated: np.ndarray) -> int:
     return int(candidates[np.argmin(np.abs(tracks[candidates] - people.max()))])
 
 
+_AGGREGATE_SETTINGS = (("jcsat, last", "last", 1), ("jcsat, mean", "mean", 1), ("jcsat, mean, stride 2", "mean", 2),
+                       ("jcsat, mean, stride 3", "mean", 3))
+
+
 def synthetic_validation(
     settings: dict[str, BaselineConfig],
     seeds: tuple[int, ...] = (101, 102, 103),
     people: int = 4,
     frames: int = 90,
     protocol: str = "voxelpose",
+    model: JCSAT | None = None,
 ) -> dict[str, dict[str, float]]:
     """Score baseline settings on SYNTHETIC Shelf-rig validation scenes (never on the Shelf test frames).
 
@@ -265,21 +284,32 @@ def synthetic_validation(
     realistic detector); every setting runs on every scene. Returns per setting the PCP (%,
     ``protocol``, averaged over all people) of each seed (``"seed <s>"``), their mean (``"pcp"``)
     and the mean number of tracks (``"tracks"``). The seeds differ from the main job's default (0).
+    With ``model``, rows ``"jcsat, ..."`` score it on the default :class:`BaselineConfig`'s tracks with
+    each of :data:`~jcsat.AGGREGATES` (``"mean"`` with window strides 1, 2 and 3).
     """
     scenes = [mocap.synthesize_scene(jax.random.key(seed), mocap.shelf_cameras(), num_people=people,
                                      num_frames=frames) for seed in seeds]
-    table: dict[str, dict[str, float]] = {}
-    for name, config in settings.items():
-        row: dict[str, float] = {}
-        tracks = []
-        for seed, scene in zip(seeds, scenes):
+    rows: dict[str, list[tuple[float, int]]] = {}
+    for scene in scenes:
+        scene_truth = mocap.EvaluationGroundTruth(np.arange(frames), np.swapaxes(scene.shelf15, 0, 1),
+                                                  np.ones((people, frames), bool))
+
+        def score(predictions: mocap.PosePredictions) -> tuple[float, int]:
+            pcp = mocap.evaluate_shelf(predictions, scene_truth, protocol, tuple(range(people))).average["pcp"]
+            return pcp, len(np.unique(predictions.person))
+
+        for name, config in settings.items():
             result = run_geometric_baseline(scene.rig, scene.detections, np.arange(frames), config)
-            truth = mocap.EvaluationGroundTruth(np.arange(frames), np.swapaxes(scene.shelf15, 0, 1),
-                                                np.ones((people, frames), bool))
-            score = mocap.evaluate_shelf(result.predictions, truth, protocol, tuple(range(people)))
-            row[f"seed {seed}"] = score.average["pcp"]
-            tracks.append(len(np.unique(result.predictions.person)))
-        row["pcp"] = float(np.mean([row[f"seed {seed}"] for seed in seeds]))
-        row["tracks"] = float(np.mean(tracks))
-        table[name] = row
-    return table
+            rows.setdefault(name, []).append(score(result.predictions))
+        if model is not None:
+            result = run_geometric_baseline(scene.rig, scene.detections, np.arange(frames), BaselineConfig())
+            tracks = result.predictions
+            for name, aggregate, stride in _AGGREGATE_SETTINGS:
+                poses = predict_shelf15(model, result.person_cloud, tracks.person, tracks.frame, aggregate=aggregate,
+                                        stride=stride)
+                predicted = mocap.PosePredictions.create(tracks.frame, tracks.person, poses, score=tracks.score)
+                rows.setdefault(name, []).append(score(predicted))
+    return {name: {**{f"seed {seed}": pcp for seed, (pcp, _) in zip(seeds, scores)},
+                   "pcp": float(np.mean([pcp for pcp, _ in scores])),
+                   "tracks": float(np.mean([count for _, count in scores]))}
+            for name, scores in rows.items()}

@@ -53,6 +53,39 @@ def test_predictions_are_the_models_last_frame_on_centred_causal_windows(baselin
         jcsat.predict_shelf15(model, tracks, rows.person, position + FRAMES)
 
 
+def test_mean_aggregate_averages_the_grid_windows_that_contain_the_frame(baseline):
+    stride = 2
+    model = jcsat.JCSAT(TINY, rngs=nnx.Rngs(0))
+    tracks = baseline.person_cloud
+    rows = baseline.predictions
+    position = rows.frame.astype(int)
+    poses = jcsat.predict_shelf15(model, tracks, rows.person, position, batch_size=7, aggregate="mean", stride=stride)
+    assert poses.shape == (len(position), 15, 3) and np.all(np.isfinite(poses))
+    # By hand, for an early row: the windows ending at t .. t + 9 on the grid (F - 1 - end divisible by the
+    # stride) where the track is present.
+    r = int(np.argmin(position))
+    track, t = int(rows.person[r]), int(position[r])
+    ends = [e for e in range(t, min(t + 10, FRAMES)) if (FRAMES - 1 - e) % stride == 0 and tracks.present[track, e]]
+    assert len(ends) > 1
+    window = jcsat.window_frames(FRAMES)
+    centres = jcsat.filled_centres(tracks.present, tracks.centre)
+    estimates = []
+    for end in ends:
+        frames = window[end]
+        mask = np.asarray(tracks.mask)[track, frames]
+        points = np.where(mask[..., None], np.asarray(tracks.points)[track, frames] - centres[track, frames[0]], 0.0)
+        estimates.append(np.asarray(model(points.astype(np.float32), mask))[9 - (end - t)] + centres[track, frames[0]])
+    np.testing.assert_allclose(poses[r], np.mean(estimates, axis=0), rtol=1e-4, atol=1e-4)
+    # The last frame has a single window: "mean" and "last" agree there.
+    last = position == FRAMES - 1
+    causal = jcsat.predict_shelf15(model, tracks, rows.person[last], position[last], aggregate="last")
+    np.testing.assert_allclose(poses[last], causal, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="aggregate"):
+        jcsat.predict_shelf15(model, tracks, rows.person, position, aggregate="median")
+    with pytest.raises(ValueError, match="stride"):
+        jcsat.predict_shelf15(model, tracks, rows.person, position, aggregate="mean", stride=11)
+
+
 @pytest.mark.slow
 def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp_path):
     config = jcsat.ShelfExperimentConfig(quick=True, synthetic_people=2, views=(0, 1, 2, 4), perturb_cameras=1,
@@ -73,3 +106,14 @@ def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp
         jcsat.run_shelf_experiment(jcsat.ShelfExperimentConfig(quick=True, views=(0, 1), perturb_cameras=3), tmp_path)
     with pytest.raises(FileNotFoundError, match="not a saved model folder"):
         jcsat.load_model(tmp_path)
+
+
+def test_synthetic_validation_scores_baseline_settings_and_the_model_aggregates():
+    model = jcsat.JCSAT(TINY, rngs=nnx.Rngs(0))
+    table = jcsat.synthetic_validation({"default": jcsat.BaselineConfig(max_candidates=6)}, seeds=(3,), people=2,
+                                       frames=FRAMES, model=model)
+    assert set(table) == {"default", "jcsat, last", "jcsat, mean", "jcsat, mean, stride 2", "jcsat, mean, stride 3"}
+    for row in table.values():
+        assert set(row) == {"seed 3", "pcp", "tracks"} and row["pcp"] == row["seed 3"] and 0.0 <= row["pcp"] <= 100.0
+    # The baseline finds both people; an untrained model's poses (near each window's centre) do not.
+    assert table["default"]["pcp"] > 50.0 > table["jcsat, last"]["pcp"]
