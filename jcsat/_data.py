@@ -215,12 +215,12 @@ def build_dataset(config: DataConfig, cache_dir: str | Path | None = None, *, wo
     ``workers > 1`` builds scenes in that many CPU-only processes (a scene takes seconds and scenes are
     independent); the windows are the same as a one-process build's, in the same order.
     """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     path = None if cache_dir is None else Path(cache_dir) / f"windows_{config.cache_key()}.npz"
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return WindowDataset(**{name: stored[name] for name in WindowDataset._fields})
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
     jobs = [(config, seed, index) for index, seed in enumerate(config.seeds)]
     if workers == 1 or len(jobs) == 1:
         parts = [_seeded_scene_windows(*job) for job in jobs]

@@ -80,12 +80,12 @@ def predict_shelf15(
     keys = np.unique(np.stack([np.repeat(track, window)[usable.ravel()], end.ravel()[usable.ravel()]], axis=1), axis=0)
     predictions = _window_predictions(model, tracks, keys[:, 0], keys[:, 1], batch_size, last_frame_only=False)
     index = {(int(k), int(t)): i for i, (k, t) in enumerate(keys)}
-    total = np.zeros((len(track), 15, 3))
+    poses = np.zeros((len(track), 15, 3))
     for r in range(len(track)):
         lags = lag[usable[r]]
         rows = [index[(int(track[r]), int(frame[r] + d))] for d in lags]
-        total[r] = predictions[rows, window - 1 - lags].mean(axis=0)
-    return total
+        poses[r] = predictions[rows, window - 1 - lags].mean(axis=0)
+    return poses
 
 
 def _window_predictions(
