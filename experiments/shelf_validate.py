@@ -1,11 +1,14 @@
 """Choose the geometric baseline's settings on SYNTHETIC Shelf-rig validation scenes (never on Shelf 300-600).
 
-    .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90] [--jcsat] [--json]
+    .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90]
+        [--protocol voxelpose|jcsat|4dassoc] [--jcsat] [--json]
 
-Scores a grid of :class:`jcsat.BaselineConfig` variants (the temporal outlier filter's window and
-distance; distance 0 is a plain median filter) with :func:`jcsat.synthetic_validation` and prints one row per
-setting: PCP (VoxelPose protocol, all synthetic people) per seed and their mean. The defaults of
-:class:`jcsat.BaselineConfig` are the best row of this table. About 2 minutes on 2 CPU cores. ``--jcsat`` adds
+Scores a grid of :class:`jcsat.BaselineConfig` variants with :func:`jcsat.synthetic_validation` and prints one
+row per setting: PCP (``--protocol``, all synthetic people) per seed and their mean. The grid varies the
+temporal outlier filter's window and distance (distance 0 is a plain median filter), chosen under the
+VoxelPose protocol, and the duplicate suppression distance, chosen under the JCSAT protocol (the only one
+where a second prediction of a person costs anything). The defaults of :class:`jcsat.BaselineConfig` are
+the best rows of these tables. About 4 minutes on 2 CPU cores (2026-11-23, with ``--jcsat``). ``--jcsat`` adds
 the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's
 default (``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
 """
@@ -22,6 +25,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
 import jax  # noqa: E402
 
 import jcsat  # noqa: E402
+import mocap  # noqa: E402
 
 
 def settings() -> dict[str, jcsat.BaselineConfig]:
@@ -31,6 +35,9 @@ def settings() -> dict[str, jcsat.BaselineConfig]:
         for distance in (0.0, 0.05, 0.1, 0.15, 0.25):
             grid[f"outliers +-{half_window} frames, {distance:g} m"] = dataclasses.replace(
                 base, outlier_half_window=half_window, outlier_distance=distance)
+    for distance in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5):
+        grid[f"duplicates within {distance:g} m"] = dataclasses.replace(jcsat.BaselineConfig(),
+                                                                        duplicate_distance=distance)
     return grid
 
 
@@ -41,13 +48,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="one synthetic scene per seed (default: %(default)s; the main job uses seed 0)")
     parser.add_argument("--people", type=int, default=4, help="people per scene (default: %(default)s)")
     parser.add_argument("--frames", type=int, default=90, help="frames per scene (default: %(default)s)")
+    parser.add_argument("--protocol", choices=mocap.EVALUATION_PROTOCOLS, default="voxelpose",
+                        help="matching protocol of the PCP (default: %(default)s; see mocap.evaluate_shelf)")
     parser.add_argument("--jcsat", action="store_true",
                         help="also score the shipped JCSAT model with each aggregate (last, mean)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     model = jcsat.load_model(jcsat.SHIPPED_MODEL) if args.jcsat else None
-    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames, model=model)
+    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames, args.protocol,
+                                       model=model)
     if args.json:
         print(json.dumps(table))
         return 0

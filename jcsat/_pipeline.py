@@ -49,9 +49,17 @@ class BaselineConfig:
     """Frames on either side of the temporal median of :func:`~jcsat.reject_temporal_outliers`
     (0: no outlier rejection). On a 3 x 5 grid of synthetic Shelf-rig validation scenes
     (``python -m experiments.shelf_validate``) 3 frames with distance 0, a centred median filter, were
-    best: PCP 92.81 against 87.06 without the filter (3 frames and 0.05 m: 92.76)."""
+    best: PCP 92.79 against 87.06 without the filter (3 frames and 0.05 m: 92.74)."""
     outlier_distance: float = 0.0
     """Metres from that median beyond which a joint is replaced by it (0: every joint is)."""
+    duplicate_distance: float = 0.2
+    """Metres: :func:`mocap.suppress_duplicates` on the predictions, ranked by support (the number of Joint
+    Cloud candidates the track's cluster holds in the frame). A surplus K-Means centre beside a person
+    gathers that person's candidates too and becomes a second skeleton of them; ranking puts the
+    better-supported one first, which is the one the JCSAT protocol scores, and this distance drops the
+    other (0: ranking only). On the synthetic validation scenes (``python -m experiments.shelf_validate
+    --protocol jcsat``) 0 to 0.3 m score alike (PCP 92.40), 0.4 m 92.03 and 0.5 m 89.67 (real people
+    dropped); 0.2 m, below any two people's mean joint distance, also drops near-copies (there are some on Shelf)."""
     max_candidates: int | None = None
     """Pad every view and joint type to this many 2D candidates (default: the largest count). A fixed
     size lets runs of different scenes share one compilation."""
@@ -60,7 +68,8 @@ class BaselineConfig:
 class BaselineResult(NamedTuple):
     predictions: mocap.PosePredictions
     """Shelf15 poses, one row per (frame, track) where the track is present and the track lasts at
-    least ``min_track_frames``; joints never seen by the track are (0, 0, 0)."""
+    least ``min_track_frames``, less duplicates (``duplicate_distance``); rows by frame, then by
+    decreasing ``score``, the support; joints never seen by the track are (0, 0, 0)."""
     body25: Float[np.ndarray, "T F 25 3"]
     """Per track, after :func:`~jcsat.fill_missing` (metres)."""
     body25_valid: Bool[np.ndarray, "T F 25"]
@@ -135,10 +144,11 @@ def run_geometric_baseline(
     track, frame = np.nonzero(kept.T)[::-1]  # rows ordered by frame, then track
     order = np.lexsort((track, frame))
     track, frame = track[order], frame[order]
-    predictions = mocap.PosePredictions.create(
+    support = np.asarray(person_cloud.mask).sum(axis=(2, 3, 4))  # (T, F)
+    predictions = mocap.suppress_duplicates(mocap.PosePredictions.create(
         frame_indices[frame].astype(np.int64), track.astype(np.int64), shelf15[track, frame],
-        score=valid[track, frame].mean(axis=-1),
-    )
+        score=support[track, frame].astype(np.float64),
+    ), config.duplicate_distance)
     seconds["assemble"] = time.perf_counter() - start
     return BaselineResult(predictions, body25, valid, present, cloud, clusters, track_of,
                           person_cloud, seconds)

@@ -11,7 +11,7 @@ import geometry
 from experiments import shelf_eval
 from mocap import (EVALUATION_PROTOCOLS, PREDICTIONS_HEADER, PosePredictions, evaluate_shelf, format_shelf_scores,
                    ground_truth_from_shelf14, match_predictions, predictions_from_4dassoc, read_predictions,
-                   shelf_evaluation_ground_truth, write_predictions)
+                   shelf_evaluation_ground_truth, suppress_duplicates, write_predictions)
 
 # A standing person (SHELF14, metres). Bones: legs 0.45, lower arms 0.3, upper arms 0.269, head 0.5,
 # torso (mid-hip (0, 0, 0.9) to head bottom) 0.6; the right ankle is 0.1 m from the origin.
@@ -134,6 +134,43 @@ def test_duplicate_prediction_first_in_order_wins_under_jcsat():
     assert score(preds, gt, "4dassoc")[0][0].pcp == 100.0
     reordered = predictions((0, at(0.0)), (0, at(0.45)))
     assert score(reordered, gt, "jcsat")[0][0].pcp == 100.0
+
+
+def test_suppress_duplicates_keeps_the_most_confident_prediction_of_each_person():
+    """Frame 3: a copy 0.15 m off (score 1), the person (score 5), a second person 1 m away (score 2), and two
+    half skeletons at one place with no joint in common. Frame 1 after it: one person. At 0.2 m the copy goes
+    and the rest is ranked by score within its frame, frames in their order; at 0 m nothing goes."""
+    left, right = at(3.0), at(3.0)
+    left[[0, 1, 2, 6, 7, 8]], right[[3, 4, 5, 9, 10, 11, 12, 13, 14]] = 0.0, 0.0
+    rows = [(3, at(0.15), 1.0), (3, at(0.0), 5.0), (3, at(1.0), 2.0), (3, left, 0.5), (3, right, 0.4),
+            (1, at(0.0), 1.0)]
+    preds = PosePredictions.create([f for f, _, _ in rows], [10, 11, 12, 13, 14, 15],
+                                   np.stack([j for _, j, _ in rows]), score=[s for _, _, s in rows])
+    kept = suppress_duplicates(preds, 0.2)
+    assert kept.person.tolist() == [11, 12, 13, 14, 15] and kept.frame.tolist() == [3, 3, 3, 3, 1]
+    np.testing.assert_array_equal(kept.joints[0], at(0.0))
+    assert kept.score.tolist() == [5.0, 2.0, 0.5, 0.4, 1.0]
+    assert suppress_duplicates(preds, 0.0).person.tolist() == [11, 12, 10, 13, 14, 15]
+    assert suppress_duplicates(preds, 0.1).person.tolist() == [11, 12, 10, 13, 14, 15]
+    assert suppress_duplicates(preds, 1.5).person.tolist() == [11, 13, 14, 15]
+
+
+def test_suppressing_a_duplicate_restores_the_jcsat_score():
+    gt = ground_truth({0: 0.0})
+    preds = PosePredictions.create([0, 0], [0, 1], np.stack([at(0.45), at(0.0)]), score=[1.0, 2.0])
+    assert score(preds, gt, "jcsat")[0][0].pcp == 0.0
+    kept = suppress_duplicates(preds, 0.5)
+    assert kept.num_predictions == 1 and score(kept, gt, "jcsat")[0][0].pcp == 100.0
+
+
+def test_suppress_duplicates_refuses_bad_arguments():
+    unscored = predictions((0, at(0.0)))
+    with pytest.raises(ValueError, match="have none"):
+        suppress_duplicates(unscored, 0.2)
+    scored = unscored._replace(score=np.ones(1))
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="min_distance"):
+            suppress_duplicates(scored, bad)
 
 
 def test_far_prediction():

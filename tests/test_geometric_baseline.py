@@ -151,3 +151,23 @@ def test_short_tracks_dropped_and_gaps_bridged():
                                           dataclasses.replace(CONFIG, max_gap_frames=0, min_track_frames=FRAMES))
     # Only the never-interrupted person is output.
     assert pruned.predictions.num_predictions == FRAMES and len(np.unique(pruned.predictions.person)) == 1
+
+
+def test_predictions_ranked_by_support_and_duplicates_suppressed():
+    """Rows are scored by the Joint Cloud candidates of their track's cluster and ranked by it within each
+    frame; a suppression distance larger than the scene keeps only each frame's best-supported person."""
+    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
+    ranked = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
+                                          dataclasses.replace(CONFIG, duplicate_distance=0.0))
+    rows = ranked.predictions
+    support = np.asarray(ranked.person_cloud.mask).sum(axis=(2, 3, 4))
+    np.testing.assert_array_equal(rows.score, support[rows.person, rows.frame])
+    assert np.all(np.diff(rows.frame) >= 0)
+    for frame in range(FRAMES):
+        assert np.all(np.diff(rows.score[rows.frame == frame]) <= 0)
+    assert len(np.unique(rows.frame)) == FRAMES and rows.num_predictions > FRAMES
+    single = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
+                                          dataclasses.replace(CONFIG, duplicate_distance=100.0)).predictions
+    assert single.frame.tolist() == list(range(FRAMES))
+    first = [int(np.flatnonzero(rows.frame == frame)[0]) for frame in range(FRAMES)]
+    np.testing.assert_array_equal(single.person, rows.person[first])
