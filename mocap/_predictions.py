@@ -240,17 +240,20 @@ def suppress_duplicates(predictions: PosePredictions, min_distance: float) -> Po
     if not (min_distance >= 0.0 and math.isfinite(min_distance)):
         raise ValueError(f"min_distance must be a finite number of metres >= 0, got {min_distance}")
     reconstructed = np.any(predictions.joints != 0.0, axis=-1)
-    kept_rows = []
+    kept_rows: list[int] = []
     for frame in dict.fromkeys(predictions.frame.tolist()):
         rows = np.flatnonzero(predictions.frame == frame)
+        rows = rows[np.argsort(-predictions.score[rows], kind="stable")]
+        n = len(rows)
+        joints = np.broadcast_to(predictions.joints[rows][:, None], (n, n, _NUM_JOINTS, 3))
+        common = reconstructed[rows][:, None] & reconstructed[rows][None]
+        # NaN for a pair without a common joint, which no comparison below takes for a duplicate.
+        distance = np.asarray(geometry.mpjpe(joints, np.swapaxes(joints, 0, 1), common))
         kept: list[int] = []
-        for row in rows[np.argsort(-predictions.score[rows], kind="stable")]:
-            common = reconstructed[row] & reconstructed[kept]  # (kept, 15)
-            distance = np.linalg.norm(predictions.joints[row] - predictions.joints[kept], axis=-1)
-            mean = np.sum(distance * common, axis=-1) / np.maximum(common.sum(axis=-1), 1)
-            if not np.any(common.any(axis=-1) & (mean < min_distance)):
-                kept.append(row)
-        kept_rows += kept
+        for i in range(n):
+            if not np.any(distance[i, kept] < min_distance):
+                kept.append(i)
+        kept_rows += rows[kept].tolist()
     return PosePredictions(*(column[kept_rows] for column in predictions))
 
 
