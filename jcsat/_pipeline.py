@@ -64,6 +64,10 @@ class BaselineConfig:
     """Pad every view and joint type to this many 2D candidates (default: the largest count). A fixed
     size lets runs of different scenes share one compilation."""
 
+    def __post_init__(self) -> None:
+        if not (self.duplicate_distance >= 0.0 and np.isfinite(self.duplicate_distance)):
+            raise ValueError(f"duplicate_distance must be a finite number of metres >= 0, got {self.duplicate_distance}")
+
 
 class BaselineResult(NamedTuple):
     predictions: mocap.PosePredictions

@@ -171,3 +171,9 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
     assert single.frame.tolist() == list(range(FRAMES))
     first = [int(np.flatnonzero(rows.frame == frame)[0]) for frame in range(FRAMES)]
     np.testing.assert_array_equal(single.person, rows.person[first])
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
+def test_bad_duplicate_distance_is_named_before_anything_runs(bad):
+    with pytest.raises(ValueError, match="duplicate_distance"):
+        jcsat.BaselineConfig(duplicate_distance=bad)
