@@ -2,9 +2,9 @@
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
         [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--aggregate mean|last] [--window-stride S]
-        [--train [--config cpu|gpu] [--resume] [--steps S] [--data-workers W]] [--seed S]
+        [--train [--config cpu|gpu|cpu_head_4da] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
-With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide``, trained only on
+With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide_4da``, trained only on
 synthetic scenes) beside the learning-free geometric baseline. With Shelf data (``--data-root`` or
 ``MVMOCAP_DATA_ROOT`` holding ``shelf/``) it infers on the real test frames 300..600 with sliding windows
 of N = 10 frames (``--aggregate``) and prints PCP (VoxelPose, JCSAT and 4D-association protocols), precision/recall
@@ -13,8 +13,9 @@ seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, ``log.json
 ``predictions.jsonl`` (``mocap`` prediction format, ``python -m experiments.shelf_eval --pred``),
 ``predictions_geometric.jsonl``, ``metrics.json`` and ``frame.png`` to ``--out``.
 
-``--train`` first trains a model from scratch on synthetic scenes (:func:`jcsat.train`, workdir
-``--out/train``; ``--resume`` continues a killed run from its last checkpoint) and then evaluates it.
+``--train`` first trains a model on synthetic scenes (:func:`jcsat.train`: from scratch, or from the run's
+``init_model``; workdir ``--out/train``; ``--resume`` continues a killed run from its last checkpoint) and
+then evaluates it.
 Logic: :func:`jcsat.run_shelf_experiment`, :func:`jcsat.train`.
 """
 
@@ -44,7 +45,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "geometric: Joint Cloud -> K-Means persons -> weighted medoid + re-triangulation only")
     parser.add_argument("--model", type=Path, default=None,
                         help="a model folder written by training (<workdir>/model); default: the shipped "
-                             "jcsat/assets/shelf_wide")
+                             "jcsat/assets/shelf_wide_4da")
     parser.add_argument("--data-root", type=Path, default=os.environ.get("MVMOCAP_DATA_ROOT"),
                         help="folder containing shelf/ (actorsGT.mat, the OpenPose detections, 4d_association/); "
                              "default $MVMOCAP_DATA_ROOT; without it a synthetic Shelf-rig scene is used and the "
@@ -61,12 +62,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "(paper Table 8) before building the Joint Cloud (default: %(default)s)")
     parser.add_argument("--perturb-seed", type=int, default=0, help="seed of that perturbation (default: %(default)s)")
     parser.add_argument("--train", action="store_true",
-                        help="train a model from scratch into OUT/train on synthetic scenes, then evaluate it")
+                        help="train a model into OUT/train on synthetic scenes (from scratch, or from the --config run's "
+                             "init_model), then evaluate it")
     parser.add_argument("--resume", action="store_true", help="with --train: continue from OUT/train's last checkpoint")
     parser.add_argument("--config", choices=sorted(jcsat.TRAIN_CONFIGS), default="cpu",
                         help="with --train: the named run in jcsat.TRAIN_CONFIGS; cpu: the 'cpu' model, 2400 steps "
                              "of 8 windows on 16 scenes (the 2-core CPU's run); gpu: the 'cpu_wide' model, 6000 "
-                             "steps of 64 windows on 48 scenes (default: %(default)s)")
+                             "steps of 64 windows on 48 scenes; cpu_head_4da: the shipped model's second stage, 500 steps "
+                             "of 16 windows fine-tuning the gpu run's model on labels with the 4D-association head "
+                             "rule (default: %(default)s)")
     parser.add_argument("--steps", type=int, default=None,
                         help="with --train: optimisation steps (default: the --config run's)")
     parser.add_argument("--data-workers", type=int, default=1,

@@ -83,8 +83,16 @@ class DataConfig:
     fixed size lets all scenes share one compilation."""
     joint_cloud: JointCloudConfig = JointCloudConfig()
     cluster: ClusterConfig = ClusterConfig()
+    head_rule: geometry.HeadRule = "h36m"
+    """How the labels' head joints (Shelf15 12 and 13) are made; the other joints do not depend on it.
+    ``"h36m"``: from the mocap skeleton's own neck and head (H36M17); any other rule of
+    :func:`geometry.to_shelf15`: from the BODY25 ears, shoulders and neck, e.g. ``"4da"``, the rule of JCSAT's
+    official code (its auxiliary "morph" target) and of the 4D-association output, whose head top lies
+    further in front of the shoulders, as Shelf's annotations do."""
 
     def __post_init__(self) -> None:
+        if self.head_rule not in geometry.HEAD_RULES:
+            raise ValueError(f"head_rule must be one of {geometry.HEAD_RULES}, got {self.head_rule!r}")
         unknown = sorted(set(self.clips) - set(mocap.list_clips()))
         if not self.clips or unknown:
             raise ValueError(f"clips must be shipped clips ({mocap.list_clips()}), got unknown {unknown} or none")
@@ -184,7 +192,7 @@ def scene_windows(scene: mocap.Scene, config: DataConfig, key: ArrayLike, scene_
         np.concatenate(parts) if parts else np.zeros(0, np.int64) for parts in (row_track, row_frame, window_start)
     )
     row_person = person[row_track, row_frame]
-    target = scene.shelf15[row_frame, np.maximum(row_person, 0)]
+    target = _labels(scene, config.head_rule)[row_frame, np.maximum(row_person, 0)]
     return WindowDataset(
         points=np.asarray(tracks.points, np.float32)[row_track, row_frame],
         mask=np.asarray(tracks.mask)[row_track, row_frame],
@@ -197,6 +205,13 @@ def scene_windows(scene: mocap.Scene, config: DataConfig, key: ArrayLike, scene_
         projections=np.asarray(geometry.projection_matrix(scene.rig))[None],
         image_size=np.asarray(scene.rig.image_size)[None],
     )
+
+
+def _labels(scene: mocap.Scene, head_rule: str) -> Float[np.ndarray, "frames people 15 3"]:
+    """The scene's Shelf15 ground truth with its head joints made by ``head_rule``."""
+    if head_rule == "h36m":
+        return scene.shelf15
+    return np.asarray(geometry.to_shelf15(scene.body25, BODY25, head_rule), np.float64)
 
 
 def _concatenate(parts: list[WindowDataset]) -> WindowDataset:

@@ -10,14 +10,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from flax import nnx
+from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose, assert_array_equal
 
+import geometry
 import mocap
 from geometry import SHELF15
 from jcsat import (
-    JCSAT, VALIDATION_CLIPS, Batch, DataConfig, JCSATConfig, TrainConfig, bone_losses, build_dataset, init_state, jcsat_loss, load_model,
-    pcp_hinge_loss, project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step,
-    window_batch,
+    CONFIGS, JCSAT, TRAIN_CONFIGS, VALIDATION_CLIPS, Batch, DataConfig, JCSATConfig, TrainConfig, bone_losses,
+    build_dataset, init_state, jcsat_loss, load_model, pcp_hinge_loss, project_normalised, projection_loss,
+    reconstruction_loss, sample_batch, train, train_step, window_batch,
 )
 import training
 from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
@@ -198,6 +200,26 @@ def test_batch_from_scene(scene, dataset, cache_dir):
     assert np.all(np.linalg.norm(first_hip, axis=-1) < TRAIN_DATA.match_radius)
 
 
+def test_head_rule_changes_only_the_head_labels(scene, dataset, cache_dir):
+    four_da = build_dataset(dataclasses.replace(TRAIN_DATA, head_rule="4da"), cache_dir)
+    for name in four_da._fields:
+        if name != "target":
+            assert_array_equal(getattr(four_da, name), getattr(dataset, name), err_msg=name)
+    head = [SHELF15.index("head_bottom"), SHELF15.index("head_top")]
+    rest = np.setdiff1d(np.arange(15), head)
+    labelled = dataset.person >= 0
+    # The clips store both skeletons in millimetres, so the shared joints agree to their quantisation.
+    assert_allclose(four_da.target[:, rest], dataset.target[:, rest], atol=1.5e-3)
+    expected = np.asarray(geometry.to_shelf15(scene.body25, geometry.BODY25, "4da"))[
+        dataset.frame[labelled], dataset.person[labelled]]
+    assert_allclose(four_da.target[labelled][:, head], expected[:, head], atol=1e-12)
+    moved = np.linalg.norm(four_da.target[labelled][:, head] - dataset.target[labelled][:, head], axis=-1)
+    assert np.median(moved[:, 1]) > 0.05  # the two rules put the top of the head in different places
+    assert np.all(four_da.target[~labelled] == 0)
+    with pytest.raises((ValueError, TypeCheckError), match="head_rule"):  # beartype checks the Literal first in tests
+        DataConfig(head_rule="ears")
+
+
 # ---------------------------------------------------------------- training
 
 
@@ -263,6 +285,25 @@ def test_resume_is_bit_identical(full_run, tmp_path):
     # The shipped model file loads back into the same parameters.
     loaded = load_model(full_dir / "model")
     assert_same_parameters(full_model, loaded)
+
+
+def test_init_model_starts_the_run(full_run, tmp_path):
+    config, full_dir, full_model = full_run
+    # A zero learning rate (and so no weight decay either) keeps the starting parameters through the steps.
+    frozen = dataclasses.replace(config, peak_lr=0.0, end_lr=0.0, init_model=str(full_dir / "model"))
+    assert_same_parameters(train(frozen, tmp_path / "fine", resume=False, progress=False), full_model)
+    fresh = train(dataclasses.replace(frozen, init_model=None), tmp_path / "fresh", resume=False, progress=False)
+    with pytest.raises(AssertionError):
+        assert_same_parameters(fresh, full_model)
+    wider = dataclasses.replace(frozen, model=dataclasses.replace(TINY, dim=16))
+    with pytest.raises(ValueError, match="init_model"):
+        train(wider, tmp_path / "wider", resume=False, progress=False)
+
+
+def test_named_runs_start_from_shipped_models():
+    for name, config in TRAIN_CONFIGS.items():
+        if config.init_model is not None:
+            assert load_model(config.init_model).config == CONFIGS[config.model], name
 
 
 def test_batch_size_must_divide_by_devices(monkeypatch, tmp_path):
