@@ -2,6 +2,7 @@
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
         [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--aggregate mean|last] [--window-stride S]
+        [--structural-steps N]
         [--train [--config cpu|gpu|cpu_head_4da] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
 With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide_4da``, trained only on
@@ -85,6 +86,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--window-stride", type=int, default=jcsat.ShelfExperimentConfig.window_stride,
                         help="with --aggregate mean: average the windows ending on every this many frames "
                              "(default: %(default)s)")
+    parser.add_argument("--structural-steps", type=int, default=jcsat.GeometricConfig.structural_steps, metavar="N",
+                        help="Step Constraint Algorithm steps of the baseline's Structural Triangulation refinement "
+                             "with each track's bone lengths; 0 turns it off (default: %(default)s, chosen on "
+                             "synthetic validation, experiments.shelf_validate)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
     return parser.parse_args(argv)
 
@@ -110,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         method=args.method, model=None if model is None else str(model),
         data_root=None if args.data_root is None else str(args.data_root),
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
-        baseline=dataclasses.replace(jcsat.BaselineConfig(), seed=args.seed),
+        baseline=dataclasses.replace(jcsat.BaselineConfig(), seed=args.seed, geometric=dataclasses.replace(
+            jcsat.GeometricConfig(), structural_steps=args.structural_steps)),
         views=None if args.views is None else tuple(args.views),
         perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed, aggregate=args.aggregate,
         window_stride=args.window_stride,

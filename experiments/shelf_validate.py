@@ -6,11 +6,13 @@
 Scores a grid of :class:`jcsat.BaselineConfig` variants with :func:`jcsat.synthetic_validation` and prints one
 row per setting: PCP (``--protocol``, all synthetic people) per seed and their mean. The grid varies the
 temporal outlier filter's window and distance (distance 0 is a plain median filter), chosen under the
-VoxelPose protocol, and the duplicate suppression distance, chosen under the JCSAT protocol (the only one
-where a second prediction of a person costs anything). The defaults of :class:`jcsat.BaselineConfig` are
-the best rows of these tables. About 4 minutes on 2 CPU cores (2026-11-23, with ``--jcsat``). ``--jcsat`` adds
-the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's
-default (``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
+VoxelPose protocol, the duplicate suppression distance, chosen under the JCSAT protocol (the only one
+where a second prediction of a person costs anything), and the Structural Triangulation refinement's steps
+and prior weight (:class:`jcsat.GeometricConfig`), chosen under the VoxelPose protocol. The defaults of
+:class:`jcsat.BaselineConfig` are the best rows of these tables, or the simpler of tied rows (their docstrings
+give the figures). About 7 minutes on 2 CPU cores (2026-11-23, with ``--jcsat``). ``--jcsat`` adds the shipped
+model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's default
+(``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
 """
 
 from __future__ import annotations
@@ -38,6 +40,13 @@ def settings() -> dict[str, jcsat.BaselineConfig]:
     for distance in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5):
         grid[f"duplicates within {distance:g} m"] = dataclasses.replace(jcsat.BaselineConfig(),
                                                                         duplicate_distance=distance)
+    geometric = jcsat.GeometricConfig()
+    structural = [(0, geometric.structural_prior_weight)]
+    structural += [(steps, 0.01) for steps in (3, 6, 9, 12)] + [(9, weight) for weight in (0.003, 0.05, 0.3)]
+    for steps, weight in structural:
+        name = f"structural {steps} steps, prior {weight:g}" if steps else "no structural refinement"
+        grid[name] = dataclasses.replace(jcsat.BaselineConfig(), geometric=dataclasses.replace(
+            geometric, structural_steps=steps, structural_prior_weight=weight))
     return grid
 
 

@@ -33,9 +33,12 @@ from ._experiment import SHIPPED_MODEL as SHIPPED_MODEL
 from ._experiment import ShelfExperimentConfig as ShelfExperimentConfig
 from ._experiment import ShelfExperimentResult as ShelfExperimentResult
 from ._geometric import consensus_joint as consensus_joint
+from ._geometric import ConsensusJoint as ConsensusJoint
 from ._geometric import fill_missing as fill_missing
 from ._geometric import geometric_poses as geometric_poses
 from ._geometric import reject_temporal_outliers as reject_temporal_outliers
+from ._geometric import structural_refinement as structural_refinement
+from ._geometric import track_bone_lengths as track_bone_lengths
 from ._geometric import GeometricConfig as GeometricConfig
 from ._geometric import GeometricPoses as GeometricPoses
 from ._inference import AGGREGATES as AGGREGATES
@@ -82,6 +85,7 @@ from ._train import TrainState as TrainState
 __all__ = [
     "AGGREGATES", "aggregation_variant", "BaselineConfig", "BaselineResult", "Batch", "BODY25_JOINT_RADIUS", "bone_losses",
     "build_dataset", "build_joint_cloud", "cluster_frames", "ClusterConfig", "CONFIGS", "consensus_joint",
+    "ConsensusJoint",
     "DataConfig", "fill_missing", "filled_centres", "FrameClusters", "geometric_poses", "GeometricConfig",
     "GeometricPoses", "init_state", "JCSAT", "jcsat_loss", "JCSATConfig", "joint_cloud_frame", "JointCloud",
     "JointCloudConfig", "kmeans", "KMeansResult", "learning_rate_schedule", "load_model", "LossConfig",
@@ -90,7 +94,8 @@ __all__ = [
     "plot_frame", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
     "reject_temporal_outliers", "run_geometric_baseline", "run_shelf_experiment", "sample_batch",
     "scene_windows", "ShelfExperimentConfig", "ShelfExperimentResult", "SHIPPED_MODEL", "sinkhorn_plan",
-    "synthetic_validation", "track_centres", "train", "TRAIN_CLIPS", "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
+    "structural_refinement", "synthetic_validation", "track_bone_lengths", "track_centres", "train", "TRAIN_CLIPS",
+    "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
     "triangulate_candidate_pair", "VALIDATION_CLIPS", "view_pairs", "window_batch", "window_frames",
     "WindowDataset",
 ]

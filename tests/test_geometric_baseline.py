@@ -30,14 +30,17 @@ def test_perfect_detector_recovers_ground_truth():
     # Not exactly 100: a joint seen by two views only has one true candidate, and a cross-person
     # candidate passing the ray filter can tie with it (one part of 160 here).
     assert score.average["pcp"] >= 99.0
-    # Exact reconstruction is checked without the temporal median filter, which smooths correct joints too.
+    # Exact reconstruction is checked without the temporal median filter, which smooths correct joints too,
+    # and without the structural refinement, whose bone lengths are left/right symmetric (this mocap
+    # skeleton's upper arms differ by 1.5 cm).
     unfiltered = dataclasses.replace(CONFIG, outlier_half_window=0)
-    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), unfiltered)
-    present = result.present
-    errors = np.linalg.norm(result.body25[:, :, None] - scene.body25[None], axis=-1)  # (T, F, people, 25)
-    nearest = errors.mean(-1).argmin(-1)
-    own = np.take_along_axis(errors, nearest[..., None, None], axis=2)[:, :, 0][present]
-    assert np.median(own) < 1e-6 and np.mean(own < 0.01) > 0.9
+    exact = dataclasses.replace(unfiltered, geometric=dataclasses.replace(CONFIG.geometric, structural_steps=0))
+    for config, median_error, within_1cm in ((exact, 1e-6, 0.9), (unfiltered, 3e-3, 0.85)):
+        result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), config)
+        errors = np.linalg.norm(result.body25[:, :, None] - scene.body25[None], axis=-1)  # (T, F, people, 25)
+        nearest = errors.mean(-1).argmin(-1)
+        own = np.take_along_axis(errors, nearest[..., None, None], axis=2)[:, :, 0][result.present]
+        assert np.median(own) < median_error and np.mean(own < 0.01) > within_1cm
 
 
 def test_realistic_detector_sensible():
@@ -55,9 +58,12 @@ def test_consensus_rejects_outlier_candidate():
     points = np.tile(truth, (10, 1))
     points[0] = truth + [0.5, 0.0, 0.0]  # a spurious candidate (its pair's detections are the true ones here)
     args = (points, np.ones(10), pairs, np.zeros((10, 2), np.int32), pixels, np.ones((5, 1)))
-    point, found, views = jcsat.consensus_joint(*map(jnp.asarray, args), geometry.projection_matrix(rig), 0.1)
-    assert bool(found) and int(views) == 5
-    np.testing.assert_allclose(point, truth, atol=1e-6)
+    joint = jcsat.consensus_joint(*map(jnp.asarray, args), geometry.projection_matrix(rig), 0.1)
+    assert bool(joint.supported) and int(joint.num_views) == 5
+    np.testing.assert_allclose(joint.point, truth, atol=1e-6)
+    # The detections it was triangulated from are reported, for the structural refinement.
+    np.testing.assert_array_equal(joint.weight, np.ones(5))
+    np.testing.assert_allclose(joint.pixels, pixels[:, 0])
 
 
 def test_fill_missing_uses_nearest_frame():
@@ -122,14 +128,16 @@ def test_reprojection_check_adds_views_and_rejects_far_detections():
     # One candidate from views (0, 1) only: without the check two views are re-triangulated.
     args = (np.array([truth]), np.ones(1), np.array([[0, 1]]), np.zeros((1, 2), np.int32), pixels, score)
     args = tuple(map(jnp.asarray, args)) + (projections, 0.1)
-    point, _, views = jcsat.consensus_joint(*args)
-    assert int(views) == 2
-    point, _, views = jcsat.consensus_joint(*args, inlier_pixels=20.0)
-    assert int(views) == 4  # views 0-3 hold an inlier; view 4's only detection is 200 px off
-    np.testing.assert_allclose(point, truth, atol=1e-6)
+    joint = jcsat.consensus_joint(*args)
+    assert int(joint.num_views) == 2 and np.asarray(joint.weight).tolist() == [1, 1, 0, 0, 0]
+    joint = jcsat.consensus_joint(*args, inlier_pixels=20.0)
+    assert int(joint.num_views) == 4  # views 0-3 hold an inlier; view 4's only detection is 200 px off
+    np.testing.assert_allclose(joint.point, truth, atol=1e-6)
+    assert np.asarray(joint.weight).tolist() == [1, 1, 1, 1, 0]
+    np.testing.assert_allclose(joint.pixels[:4], exact[:4])
     score[:, 0] = 0.1  # below min_score: never an inlier
-    _, _, views = jcsat.consensus_joint(*args[:5], jnp.asarray(score), projections, 0.1, inlier_pixels=20.0)
-    assert int(views) == 2
+    joint = jcsat.consensus_joint(*args[:5], jnp.asarray(score), projections, 0.1, inlier_pixels=20.0)
+    assert int(joint.num_views) == 2
 
 
 def test_short_tracks_dropped_and_gaps_bridged():
@@ -177,3 +185,94 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
 def test_bad_duplicate_distance_is_named_before_anything_runs(bad):
     with pytest.raises(ValueError, match="duplicate_distance"):
         jcsat.BaselineConfig(duplicate_distance=bad)
+
+
+def test_track_bone_lengths_median_of_triangulated_frames_and_mirror_average():
+    skeleton = geometry.SKEL19
+    frames = 9
+    rest = np.zeros((skeleton.num_joints, 3))
+    for j in skeleton.topological_order[1:]:  # every bone 0.1 m along x, except the right forearm
+        rest[j] = rest[skeleton.parents[j]] + [0.1, 0.0, 0.0]
+    r_wrist, r_elbow, l_wrist = (skeleton.index(n) for n in ("r_wrist", "r_elbow", "l_wrist"))
+    rest[r_wrist] = rest[r_elbow] + [0.3, 0.0, 0.0]
+    joints = np.repeat(rest[None], frames, axis=0)
+    joints[4, r_wrist] += [5.0, 0.0, 0.0]  # one wild frame: the median ignores it
+    views = np.full((frames, skeleton.num_joints), 3)
+    views[:, l_wrist] = 0  # the left forearm is never triangulated: its mirror's length is used
+    views[7, r_wrist] = 1
+    joints[7, r_wrist] += [9.0, 0.0, 0.0]  # fewer than two views: not counted at all
+    lengths = jcsat.track_bone_lengths(joints, views, skeleton)
+    bone_of = {c: k for k, (_, c) in enumerate(skeleton.bones)}
+    np.testing.assert_allclose(lengths[bone_of[r_wrist]], 0.3)
+    np.testing.assert_allclose(lengths[bone_of[l_wrist]], 0.3)
+    others = [k for k in range(len(lengths)) if k not in (bone_of[r_wrist], bone_of[l_wrist])]
+    np.testing.assert_allclose(lengths[others], 0.1)
+    views[:, r_wrist] = 0
+    assert np.isnan(jcsat.track_bone_lengths(joints, views, skeleton)[bone_of[r_wrist]])
+
+
+def _noisy_track(seed, frames=12):
+    """One person of a synthetic scene seen by the Shelf cameras, its detections with pixel noise, and
+    their DLT triangulation (the raw baseline joints)."""
+    rig = mocap.shelf_cameras()
+    scene = mocap.synthesize_scene(jax.random.key(seed), rig, num_people=1, num_frames=frames,
+                                   detector=mocap.PERFECT_DETECTOR)
+    truth = np.asarray(scene.body25[:, 0])  # (F, 25, 3)
+    views = rig.num_views
+    exact = np.stack([np.asarray(geometry.project(rig.select(v), truth)) for v in range(views)], axis=2)  # (F,25,V,2)
+    pixels = exact + np.random.default_rng(seed).normal(0.0, 4.0, exact.shape)
+    weight = np.ones(pixels.shape[:3])
+    projections = np.asarray(geometry.projection_matrix(rig))
+    raw = np.asarray(geometry.triangulate(projections, np.moveaxis(pixels, 2, -2), weight).point)
+    return projections, truth, raw, pixels, weight
+
+
+def test_structural_refinement_meets_track_bone_lengths_and_reduces_error():
+    projections, truth, raw, pixels, weight = _noisy_track(3)
+    skeleton = geometry.SKEL19
+    joints = [geometry.BODY25.index(name) for name in skeleton.joints]
+    valid = np.ones(raw.shape[:2], bool)
+    num_views = np.full(raw.shape[:2], projections.shape[0])
+    refined, done = jcsat.structural_refinement(projections, raw[None], valid[None], num_views[None],
+                                                pixels[None], weight[None], steps=9, prior_weight=0.01)
+    assert done.all()
+    target = jcsat.track_bone_lengths(raw[:, joints], num_views[:, joints], skeleton)
+    parent, child = np.asarray(skeleton.bones).T
+    solved = refined[0][:, joints]
+    np.testing.assert_allclose(np.linalg.norm(solved[:, child] - solved[:, parent], axis=-1),
+                               np.broadcast_to(target, (raw.shape[0], len(target))), rtol=0.02)
+    error = lambda pose: np.linalg.norm(pose[:, joints] - truth[:, joints], axis=-1).mean()  # noqa: E731
+    assert error(refined[0]) < error(raw)
+    others = [j for j in range(geometry.BODY25.num_joints) if j not in joints]
+    np.testing.assert_array_equal(refined[0][:, others], raw[:, others])
+
+
+def test_structural_refinement_keeps_unseen_joints_and_tracks_without_lengths():
+    projections, _, raw, pixels, weight = _noisy_track(4)
+    frames = raw.shape[0]
+    wrist = geometry.BODY25.index("l_wrist")
+    valid = np.ones(raw.shape[:2], bool)
+    num_views = np.full(raw.shape[:2], projections.shape[0])
+    valid[5, wrist] = False  # no candidate: left as is (the pipeline fills it from its neighbours later)
+    weight = weight.copy()
+    weight[6, wrist, 1:] = 0.0  # one detection: the projected estimate anchors the joint
+    num_views[6, wrist] = 0
+    body = np.stack([raw, raw])
+    no_lengths = num_views.copy()
+    no_lengths[:, geometry.BODY25.index("l_ankle")] = 0  # never triangulated, nor its mirror:
+    no_lengths[:, geometry.BODY25.index("r_ankle")] = 0  # the second track has no shin length
+    refined, done = jcsat.structural_refinement(
+        projections, body, np.stack([valid, valid]), np.stack([num_views, no_lengths]),
+        np.stack([pixels, pixels]), np.stack([weight, weight]), steps=3, prior_weight=0.01)
+    assert done[0].all() and not done[1].any()
+    np.testing.assert_array_equal(refined[1], body[1])
+    np.testing.assert_array_equal(refined[0, 5, wrist], raw[5, wrist])
+    assert np.all(np.isfinite(refined)) and np.linalg.norm(refined[0, 6, wrist] - raw[6, wrist]) < 0.1
+    assert frames == refined.shape[1]
+
+
+@pytest.mark.parametrize("field, bad", [("structural_steps", -1), ("structural_prior_weight", 0.0),
+                                        ("structural_prior_weight", float("nan"))])
+def test_bad_structural_settings_are_named(field, bad):
+    with pytest.raises(ValueError, match=field):
+        jcsat.GeometricConfig(**{field: bad})
