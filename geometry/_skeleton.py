@@ -89,6 +89,12 @@ class Skeleton:
         return tuple(out)
 
     @cached_property
+    def mirror_bones(self) -> tuple[int, ...]:
+        """Index in :attr:`bones` of the left/right counterpart of each bone (itself for central bones)."""
+        bone_of_child = {child: k for k, (_, child) in enumerate(self.bones)}
+        return tuple(bone_of_child[self.mirror[child]] for _, child in self.bones)
+
+    @cached_property
     def left_right_pairs(self) -> tuple[tuple[int, int], ...]:
         return tuple((i, m) for i, m in enumerate(self.mirror) if self.joints[i].startswith("l_"))
 

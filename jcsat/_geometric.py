@@ -314,12 +314,10 @@ def track_bone_lengths(
     parent, child = np.asarray(skeleton.bones).T
     seen = (num_views[:, parent] >= 2) & (num_views[:, child] >= 2)
     lengths = np.where(seen, np.linalg.norm(joints[:, child] - joints[:, parent], axis=-1), np.nan)
-    bone_of_child = {int(c): k for k, c in enumerate(child)}
-    mirror = np.array([bone_of_child[skeleton.mirror[int(c)]] for c in child])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices: bones never seen stay NaN
         median = np.nanmedian(lengths, axis=0)
-        return np.nanmean(np.stack([median, median[mirror]]), axis=0)
+        return np.nanmean(np.stack([median, median[np.asarray(skeleton.mirror_bones)]]), axis=0)
 
 
 def structural_refinement(

@@ -735,7 +735,4 @@ def estimate_bone_lengths(
     mean = jnp.sum(jnp.where(usable[:, None], lengths, 0.0), axis=0) / jnp.maximum(jnp.sum(usable), 1)
     if not symmetric:
         return mean
-    tree = _tree(skeleton)
-    bone_of_child = {int(c): k for k, c in enumerate(tree.child)}
-    mirror_bone = np.array([bone_of_child[skeleton.mirror[int(c)]] for c in tree.child])
-    return 0.5 * (mean + mean[mirror_bone])
+    return 0.5 * (mean + mean[np.asarray(skeleton.mirror_bones)])

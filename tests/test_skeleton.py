@@ -85,6 +85,12 @@ def test_mirror_maps_parents_to_mirrored_parents():
                 assert s.parents[s.mirror[c]] == s.mirror[p], (s.name, s.joints[c])
 
 
+@pytest.mark.parametrize("skeleton", ALL, ids=lambda s: s.name)
+def test_mirror_bones_join_mirrored_joints(skeleton: Skeleton):
+    for k, (parent, child) in enumerate(skeleton.bones):
+        assert skeleton.bones[skeleton.mirror_bones[k]] == (skeleton.mirror[parent], skeleton.mirror[child])
+
+
 def test_shelf15_pcp_parts_follow_the_protocol():
     # shelf_protocol.md section 4, Shelf15 indices; the order is 4DA's printout order.
     expected = [(9, 10), (7, 8), (10, 11), (6, 7), (3, 4), (1, 2), (4, 5), (0, 1), (12, 13), (14, 12)]
