@@ -320,6 +320,10 @@ def track_bone_lengths(
         return np.nanmean(np.stack([median, median[np.asarray(skeleton.mirror_bones)]]), axis=0)
 
 
+_STRUCTURAL_ROWS = 128
+"""Frames per chunk of :func:`structri.structural_triangulation`'s batched solver."""
+
+
 def structural_refinement(
     projections: Float[ArrayLike, "V 3 4"],
     body25: Float[np.ndarray, "T F 25 3"],
@@ -363,20 +367,30 @@ def structural_refinement(
         projected = homogeneous[..., :2] / np.where(in_front, homogeneous[..., 2], 1.0)[..., None]
         detected = weight[t][frames][:, joints] > 0
         observed.append(np.where(detected[..., None], pixels[t][frames][:, joints], projected))
-        observed_weight.append(np.where(detected, weight[t][frames][:, joints], np.where(in_front, prior_weight, 0.0)))
+        prior = np.where(in_front, prior_weight, 0.0)
+        observed_weight.append(np.where(detected, weight[t][frames][:, joints], prior))
         lengths.append(np.broadcast_to(bone_lengths, (len(frames), len(bone_lengths))))
         rows.extend((t, f) for f in frames)
     refined = np.zeros((num_tracks, num_frames), bool)
     if not rows:
         return body25, refined
     track, frame = np.asarray(rows).T
+    # Rows padded (repeating the last) to a multiple of the solver's chunk: scenes of similar size share one
+    # compilation, at no extra work since the solver pads to whole chunks itself.
+    pad = -len(rows) % _STRUCTURAL_ROWS
+
+    def padded(parts):
+        joined = np.concatenate(parts)
+        return np.concatenate([joined, np.repeat(joined[-1:], pad, axis=0)])
+
     result = structri.structural_triangulation(
-        np.swapaxes(np.concatenate(observed), 1, 2), projections, np.concatenate(lengths), skeleton,
-        np.swapaxes(np.concatenate(observed_weight), 1, 2), n_steps=steps)
-    accepted = np.asarray(result.status) <= structri.Status.SINGLE_STEP
+        np.swapaxes(padded(observed), 1, 2), projections, padded(lengths), skeleton,
+        np.swapaxes(padded(observed_weight), 1, 2), n_steps=steps)
+    status, pose = np.asarray(result.status)[:len(rows)], np.asarray(result.pose)[:len(rows)]
+    accepted = status <= structri.Status.SINGLE_STEP
     track, frame = track[accepted], frame[accepted]
     refined[track, frame] = True
-    solved = np.where(valid[track, frame][..., None], np.asarray(result.pose)[accepted], body[track, frame])
+    solved = np.where(valid[track, frame][..., None], pose[accepted], body[track, frame])
     out = body25.copy()
     out[track[:, None], frame[:, None], joints[None, :]] = solved
     return out, refined
