@@ -2,7 +2,7 @@
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
         [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--aggregate mean|last] [--window-stride S]
-        [--structural-steps N]
+        [--structural-steps N] [--max-bone-deviation R] [--outlier-filter HALF_WINDOW DISTANCE]
         [--train [--config cpu|gpu|cpu_head_4da] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
 With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide_4da``, trained only on
@@ -90,8 +90,38 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="Step Constraint Algorithm steps of the baseline's Structural Triangulation refinement "
                              "with each track's bone lengths; 0 turns it off (default: %(default)s, chosen on "
                              "synthetic validation, experiments.shelf_validate)")
+    parser.add_argument("--max-bone-deviation", type=float, default=jcsat.GeometricConfig.max_bone_deviation,
+                        metavar="R",
+                        help="that refinement distrusts the detections of a joint all of whose bones are off the "
+                             "track's lengths by more than R times their length; 0 trusts every joint (default: "
+                             "%(default)s, chosen on synthetic validation)")
+    parser.add_argument("--outlier-filter", type=float, nargs=2, metavar=("HALF_WINDOW", "DISTANCE"),
+                        default=(jcsat.BaselineConfig.outlier_half_window, jcsat.BaselineConfig.outlier_distance),
+                        help="the baseline's temporal filter: frames on either side of each joint's median, and the "
+                             "metres from it beyond which a joint is replaced by it (0 frames: off; default: "
+                             "%(default)s, chosen on synthetic validation)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if not float(args.outlier_filter[0]).is_integer():
+        parser.error(f"--outlier-filter HALF_WINDOW must be a whole number of frames, got {args.outlier_filter[0]}")
+    return args
+
+
+def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat.ShelfExperimentConfig:
+    """The run's :class:`jcsat.ShelfExperimentConfig` from the parsed options (``model``: None for the shipped one)."""
+    return jcsat.ShelfExperimentConfig(
+        method=args.method, model=None if model is None else str(model),
+        data_root=None if args.data_root is None else str(args.data_root),
+        quick=args.quick, seed=args.seed, plot=not args.no_plot,
+        baseline=dataclasses.replace(
+            jcsat.BaselineConfig(), seed=args.seed, outlier_half_window=int(args.outlier_filter[0]),
+            outlier_distance=args.outlier_filter[1], geometric=dataclasses.replace(
+                jcsat.GeometricConfig(), structural_steps=args.structural_steps,
+                max_bone_deviation=args.max_bone_deviation)),
+        views=None if args.views is None else tuple(args.views),
+        perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed, aggregate=args.aggregate,
+        window_stride=args.window_stride,
+    )
 
 
 def _train(args: argparse.Namespace) -> Path:
@@ -111,16 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     jax.config.update("jax_enable_x64", True)
     args.out.mkdir(parents=True, exist_ok=True)
     model = _train(args) if args.train else args.model
-    config = jcsat.ShelfExperimentConfig(
-        method=args.method, model=None if model is None else str(model),
-        data_root=None if args.data_root is None else str(args.data_root),
-        quick=args.quick, seed=args.seed, plot=not args.no_plot,
-        baseline=dataclasses.replace(jcsat.BaselineConfig(), seed=args.seed, geometric=dataclasses.replace(
-            jcsat.GeometricConfig(), structural_steps=args.structural_steps)),
-        views=None if args.views is None else tuple(args.views),
-        perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed, aggregate=args.aggregate,
-        window_stride=args.window_stride,
-    )
+    config = experiment_config(args, model)
     log_path = args.out / "log.jsonl"
     log_path.write_text("")
     stages = [s for s in _STAGES if (s != "plot" or config.plot) and (s != "jcsat" or config.method == "jcsat")]

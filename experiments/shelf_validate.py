@@ -7,8 +7,8 @@ Scores a grid of :class:`jcsat.BaselineConfig` variants with :func:`jcsat.synthe
 row per setting: PCP (``--protocol``, all synthetic people) per seed and their mean. The grid varies the
 temporal outlier filter's window and distance (distance 0 is a plain median filter), chosen under the
 VoxelPose protocol, the duplicate suppression distance, chosen under the JCSAT protocol (the only one
-where a second prediction of a person costs anything), and the Structural Triangulation refinement's steps
-and prior weight (:class:`jcsat.GeometricConfig`), chosen under the VoxelPose protocol. The defaults of
+where a second prediction of a person costs anything), and the Structural Triangulation refinement's steps,
+prior weight and bone-outlier ratio (:class:`jcsat.GeometricConfig`), chosen under the VoxelPose protocol. The defaults of
 :class:`jcsat.BaselineConfig` are the best rows of these tables, or the simpler of tied rows (their docstrings
 give the figures). About 7 minutes on 2 CPU cores (2026-11-23, with ``--jcsat``). ``--jcsat`` adds the shipped
 model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's default
@@ -47,6 +47,10 @@ def settings() -> dict[str, jcsat.BaselineConfig]:
         name = f"structural {steps} steps, prior {weight:g}" if steps else "no structural refinement"
         grid[name] = dataclasses.replace(jcsat.BaselineConfig(), geometric=dataclasses.replace(
             geometric, structural_steps=steps, structural_prior_weight=weight))
+    for deviation in (0.0, 0.25, 0.5, 1.0):
+        name = f"bone outliers beyond {deviation:g}" if deviation else "no bone outliers"
+        grid[name] = dataclasses.replace(jcsat.BaselineConfig(), geometric=dataclasses.replace(
+            geometric, max_bone_deviation=deviation))
     return grid
 
 

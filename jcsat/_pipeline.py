@@ -51,14 +51,14 @@ class BaselineConfig:
     """A track absent for at most this many frames between two frames where it is present is
     bridged: the gap frames take each joint from the nearest frame that has it
     (:func:`~jcsat.fill_missing`). A person whose MidHip goes undetected for a moment keeps a pose."""
-    outlier_half_window: int = 3
+    outlier_half_window: int = 2
     """Frames on either side of the temporal median of :func:`~jcsat.reject_temporal_outliers`
-    (0: no outlier rejection). On a 3 x 5 grid of synthetic Shelf-rig validation scenes
-    (``python -m experiments.shelf_validate``) 3 frames with distance 0, a centred median filter, were
-    best: PCP 92.79 against 87.06 without the filter (3 frames and 0.05 m: 92.74). With the structural
-    refinement that came later (2026-11-23) the same grid gives 93.02 against 88.31, and 3 frames and
-    0.05 m 93.05: a tie (about 3 of the 10 800 scored limbs), so the plain median filter stayed."""
-    outlier_distance: float = 0.0
+    (0: no outlier rejection). Chosen on a 3 x 5 grid of synthetic Shelf-rig validation scenes
+    (``python -m experiments.shelf_validate``). With the bone-outlier rejection of the structural refinement
+    (2026-11-24) 2 frames and 0.05 m were best: PCP 94.18 against 90.83 without the filter and 93.80 for the
+    plain median filter of 3 frames that was chosen before that rejection existed (2026-11-23: 93.02, against
+    93.05 for 3 frames and 0.05 m)."""
+    outlier_distance: float = 0.05
     """Metres from that median beyond which a joint is replaced by it (0: every joint is)."""
     duplicate_distance: float = 0.2
     """Metres: :func:`mocap.suppress_duplicates` on the predictions, ranked by support (the number of Joint
@@ -152,7 +152,8 @@ def run_geometric_baseline(
     if config.geometric.structural_steps:
         body25, _ = structural_refinement(
             geometry.projection_matrix(rig), body25, valid, by_track(poses.num_views), by_track(poses.pixels),
-            by_track(poses.view_weight), config.geometric.structural_steps, config.geometric.structural_prior_weight)
+            by_track(poses.view_weight), config.geometric.structural_steps, config.geometric.structural_prior_weight,
+            max_bone_deviation=config.geometric.max_bone_deviation)
     present = _bridge_gaps(person_cloud.present, config.max_gap_frames)
     for t in range(num_tracks):
         body25[t] = reject_temporal_outliers(body25[t], valid[t], config.outlier_half_window, config.outlier_distance)

@@ -1,6 +1,7 @@
 """The geometric baseline and the Shelf experiment on small synthetic scenes (real data: one marked test)."""
 
 import dataclasses
+import inspect
 import json
 
 import jax
@@ -269,10 +270,59 @@ def test_structural_refinement_keeps_unseen_joints_and_tracks_without_lengths():
     np.testing.assert_array_equal(refined[0, 5, wrist], raw[5, wrist])
     assert np.all(np.isfinite(refined)) and np.linalg.norm(refined[0, 6, wrist] - raw[6, wrist]) < 0.1
     assert frames == refined.shape[1]
+    unchecked = inspect.unwrap(jcsat.structural_refinement)  # the function's own check, not the test-time jaxtyping one
+    with pytest.raises(ValueError, match="pixels must have shape"):
+        unchecked(projections, body, np.stack([valid, valid]), np.stack([num_views, num_views]),
+                                    np.stack([pixels, pixels])[:, :, :, :2], np.stack([weight, weight]), 3, 0.01)
+
+
+def test_bone_outliers_reject_the_wrong_joint_not_its_neighbours():
+    skeleton = geometry.SKEL19
+    rest = np.zeros((skeleton.num_joints, 3))
+    for j in skeleton.topological_order[1:]:
+        rest[j] = rest[skeleton.parents[j]] + [0.1, 0.0, 0.0]
+    lengths = np.full(len(skeleton.bones), 0.1)
+    r_wrist, r_elbow, nose = (skeleton.index(n) for n in ("r_wrist", "r_elbow", "nose"))
+    joints = np.repeat(rest[None], 4, axis=0)
+    joints[1, r_wrist] += [0.0, 0.3, 0.0]  # a leaf: its one bone deviates
+    joints[2, r_elbow] += [0.0, 0.3, 0.0]  # both forearm bones deviate: the elbow, not the correct wrist
+    joints[3, nose] += [0.0, 0.0, 0.3]  # its three bones deviate, each ear's one bone too: the nose only
+    valid = np.ones(joints.shape[:2], bool)
+    expected = np.zeros(joints.shape[:2], bool)
+    expected[1, r_wrist] = expected[2, r_elbow] = expected[3, nose] = True
+    np.testing.assert_array_equal(jcsat.bone_outliers(joints, valid, lengths, skeleton, 0.5), expected)
+    assert not jcsat.bone_outliers(joints, valid, lengths, skeleton, 3.0).any()  # 0.32 m is within 4 x 0.1 m
+    unknown = lengths.copy()
+    unknown[[k for k, (_, c) in enumerate(skeleton.bones) if c == r_wrist]] = np.nan
+    assert not jcsat.bone_outliers(joints, valid, unknown, skeleton, 0.5)[1, r_wrist]
+    valid[1, r_elbow] = False  # the wrist has no bone to a valid joint left: nothing to judge it by
+    assert not jcsat.bone_outliers(joints, valid, lengths, skeleton, 0.5)[1].any()
+
+
+def test_structural_refinement_distrusts_bone_outliers():
+    projections, truth, raw, pixels, weight = _noisy_track(5)
+    wrist = geometry.BODY25.index("l_wrist")
+    wrong = slice(4, 7)  # three frames (of 12) whose wrist detections belong to a point 0.8 m away in every view
+    homogeneous = np.einsum("vab,fb->fva", projections[:, :, :3], truth[wrong, wrist] + [0.8, 0.0, 0.0])
+    homogeneous += projections[:, :, 3]
+    pixels = pixels.copy()
+    pixels[wrong, wrist] = homogeneous[..., :2] / homogeneous[..., 2:]
+    raw = raw.copy()
+    raw[:, wrist] = np.asarray(geometry.triangulate(projections, pixels[:, wrist], weight[:, wrist]).point)
+    args = (projections, raw[None], np.ones((1,) + raw.shape[:2], bool), np.full((1,) + raw.shape[:2], 5),
+            pixels[None], weight[None])
+    trusting, _ = jcsat.structural_refinement(*args, steps=9, prior_weight=0.01)
+    distrusting, done = jcsat.structural_refinement(*args, steps=9, prior_weight=0.01, max_bone_deviation=0.5)
+    assert done.all()
+    error = lambda pose: np.linalg.norm(pose[0, wrong, wrist] - truth[wrong, wrist], axis=-1)  # noqa: E731
+    assert np.all(error(trusting) > 0.3) and np.all(error(distrusting) < 0.1)
+    right = np.r_[0:4, 7:12]
+    np.testing.assert_allclose(distrusting[0, right], trusting[0, right], atol=1e-9)
 
 
 @pytest.mark.parametrize("field, bad", [("structural_steps", -1), ("structural_prior_weight", 0.0),
-                                        ("structural_prior_weight", float("nan"))])
+                                        ("structural_prior_weight", float("nan")), ("max_bone_deviation", -0.5),
+                                        ("max_bone_deviation", float("inf"))])
 def test_bad_structural_settings_are_named(field, bad):
     with pytest.raises(ValueError, match=field):
         jcsat.GeometricConfig(**{field: bad})

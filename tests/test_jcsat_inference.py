@@ -117,3 +117,17 @@ def test_synthetic_validation_scores_baseline_settings_and_the_model_aggregates(
         assert set(row) == {"seed 3", "pcp", "tracks"} and row["pcp"] == row["seed 3"] and 0.0 <= row["pcp"] <= 100.0
     # The baseline finds both people; an untrained model's poses (near each window's centre) do not.
     assert table["default"]["pcp"] > 50.0 > table["jcsat, last"]["pcp"]
+
+
+def test_main_job_options_reach_the_baseline_config():
+    from experiments import shelf_jcsat
+
+    defaults = shelf_jcsat.experiment_config(shelf_jcsat.parse_args([]), None)
+    assert defaults == jcsat.ShelfExperimentConfig()
+    args = shelf_jcsat.parse_args(["--structural-steps", "3", "--max-bone-deviation", "0.25",
+                                   "--outlier-filter", "3", "0", "--seed", "4"])
+    baseline = shelf_jcsat.experiment_config(args, None).baseline
+    assert (baseline.outlier_half_window, baseline.outlier_distance, baseline.seed) == (3, 0.0, 4)
+    assert (baseline.geometric.structural_steps, baseline.geometric.max_bone_deviation) == (3, 0.25)
+    with pytest.raises(SystemExit):
+        shelf_jcsat.parse_args(["--outlier-filter", "2.5", "0.05"])
