@@ -82,6 +82,10 @@ def _check_body_inputs(model: BodyModel, rotations, betas, translation) -> tuple
     if rotations.shape != (joints, 3, 3) or betas.shape != (shapes,) or translation.shape != (3,):
         raise ValueError(f"need rotations ({joints}, 3, 3), betas ({shapes},) and translation (3,), got "
                          f"{rotations.shape}, {betas.shape} and {translation.shape}")
+    for name, value in (("rotations", rotations), ("betas", betas), ("translation", translation)):
+        # Concrete inputs only: under jit or vmap the values are not known here.
+        if not isinstance(value, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(value))):
+            raise ValueError(f"{name} contains NaN or inf")
     return rotations, betas, translation
 
 

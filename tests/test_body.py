@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 
-from geometry import (SMPL24, BodyModel, body_forward, body_joints, load_body_model, matrix_to_rotation_6d,
-                      rotation_6d_to_matrix, stand_in_body_model)
+from geometry import (SMPL24, BodyModel, body_forward, body_joints, body_points, load_body_model,
+                      matrix_to_rotation_6d, rotation_6d_to_matrix, stand_in_body_model)
 
 STAND_IN = stand_in_body_model()
 
@@ -186,3 +186,11 @@ def test_clear_errors(tmp_path):
         load_body_model(tmp_path / "model.obj")
     with pytest.raises(ValueError, match=r"rotations \(24, 3, 3\), betas \(3,\)"):
         body_forward(STAND_IN, np.zeros((23, 3, 3)), np.zeros(3), np.zeros(3))
+    rest = np.broadcast_to(np.eye(3), (24, 3, 3))
+    with pytest.raises(ValueError, match="betas contains NaN"):
+        body_forward(STAND_IN, rest, np.array([0.0, np.nan, 0.0]), np.zeros(3))
+    with pytest.raises(ValueError, match="translation contains NaN"):
+        body_joints(STAND_IN, rest, np.zeros(3), np.array([0.0, 0.0, np.inf]))
+    with pytest.raises(ValueError, match="rotations contains NaN"):
+        body_points(STAND_IN, np.where(np.arange(24)[:, None, None] == 5, np.nan, rest), np.zeros(3), np.zeros(3),
+                    np.arange(4))
