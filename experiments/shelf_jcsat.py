@@ -2,7 +2,7 @@
 
     .venv/bin/python -m experiments.shelf_jcsat [--data-root PATH] [--out DIR] [--quick] [--method jcsat|geometric]
         [--model DIR] [--views 0 1 2 ...] [--perturb-cameras K] [--aggregate mean|last] [--window-stride S]
-        [--structural-steps N] [--max-bone-deviation R] [--outlier-filter HALF_WINDOW DISTANCE]
+        [--structural-steps N] [--max-bone-deviation R] [--outlier-half-window W] [--outlier-distance M]
         [--train [--config cpu|gpu|cpu_head_4da] [--resume] [--steps S] [--data-workers W]] [--seed S]
 
 With no arguments it runs the shipped JCSAT model (``jcsat/assets/shelf_wide_4da``, trained only on
@@ -95,16 +95,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="that refinement distrusts the detections of a joint all of whose bones are off the "
                              "track's lengths by more than R times their length; 0 trusts every joint (default: "
                              "%(default)s, chosen on synthetic validation)")
-    parser.add_argument("--outlier-filter", type=float, nargs=2, metavar=("HALF_WINDOW", "DISTANCE"),
-                        default=(jcsat.BaselineConfig.outlier_half_window, jcsat.BaselineConfig.outlier_distance),
-                        help="the baseline's temporal filter: frames on either side of each joint's median, and the "
-                             "metres from it beyond which a joint is replaced by it (0 frames: off; default: "
-                             "%(default)s, chosen on synthetic validation)")
+    parser.add_argument("--outlier-half-window", type=int, default=jcsat.BaselineConfig.outlier_half_window,
+                        metavar="W",
+                        help="the baseline's temporal filter: frames on either side of each joint's median; 0 turns "
+                             "it off (default: %(default)s, chosen on synthetic validation)")
+    parser.add_argument("--outlier-distance", type=float, default=jcsat.BaselineConfig.outlier_distance, metavar="M",
+                        help="metres from that median beyond which a joint is replaced by it; 0 replaces every joint, "
+                             "a plain median filter (default: %(default)s, chosen on synthetic validation)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
-    args = parser.parse_args(argv)
-    if not float(args.outlier_filter[0]).is_integer():
-        parser.error(f"--outlier-filter HALF_WINDOW must be a whole number of frames, got {args.outlier_filter[0]}")
-    return args
+    return parser.parse_args(argv)
 
 
 def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat.ShelfExperimentConfig:
@@ -114,8 +113,8 @@ def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat.She
         data_root=None if args.data_root is None else str(args.data_root),
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
         baseline=dataclasses.replace(
-            jcsat.BaselineConfig(), seed=args.seed, outlier_half_window=int(args.outlier_filter[0]),
-            outlier_distance=args.outlier_filter[1], geometric=dataclasses.replace(
+            jcsat.BaselineConfig(), seed=args.seed, outlier_half_window=args.outlier_half_window,
+            outlier_distance=args.outlier_distance, geometric=dataclasses.replace(
                 jcsat.GeometricConfig(), structural_steps=args.structural_steps,
                 max_bone_deviation=args.max_bone_deviation)),
         views=None if args.views is None else tuple(args.views),

@@ -36,8 +36,8 @@ from ._geometric import consensus_joint as consensus_joint
 from ._geometric import ConsensusJoint as ConsensusJoint
 from ._geometric import fill_missing as fill_missing
 from ._geometric import geometric_poses as geometric_poses
-from ._geometric import reject_temporal_outliers as reject_temporal_outliers
 from ._geometric import bone_outliers as bone_outliers
+from ._geometric import reject_temporal_outliers as reject_temporal_outliers
 from ._geometric import structural_refinement as structural_refinement
 from ._geometric import track_bone_lengths as track_bone_lengths
 from ._geometric import GeometricConfig as GeometricConfig
@@ -87,7 +87,8 @@ __all__ = [
     "AGGREGATES", "aggregation_variant", "BaselineConfig", "BaselineResult", "Batch", "BODY25_JOINT_RADIUS", "bone_losses",
     "build_dataset", "build_joint_cloud", "cluster_frames", "ClusterConfig", "CONFIGS", "consensus_joint",
     "ConsensusJoint",
-    "bone_outliers", "DataConfig", "fill_missing", "filled_centres", "FrameClusters", "geometric_poses", "GeometricConfig",
+    "bone_outliers", "DataConfig", "fill_missing", "filled_centres", "FrameClusters", "geometric_poses",
+    "GeometricConfig",
     "GeometricPoses", "init_state", "JCSAT", "jcsat_loss", "JCSATConfig", "joint_cloud_frame", "JointCloud",
     "JointCloudConfig", "kmeans", "KMeansResult", "learning_rate_schedule", "load_model", "LossConfig",
     "make_optimizer", "MATCH_DISTANCE_M", "matched_tracks", "METHODS", "numpy_joint_cloud_frame", "otap",

@@ -53,8 +53,8 @@ from geometry import BODY25, SKEL19, Camera, Skeleton
 from ._clustering import FrameClusters
 from ._joint_cloud import JointCloud, view_pairs
 
-__all__ = ["ConsensusJoint", "GeometricConfig", "GeometricPoses", "bone_outliers", "consensus_joint", "geometric_poses",
-           "fill_missing", "reject_temporal_outliers", "structural_refinement", "track_bone_lengths"]
+__all__ = ["ConsensusJoint", "GeometricConfig", "GeometricPoses", "bone_outliers", "consensus_joint",
+           "geometric_poses", "fill_missing", "reject_temporal_outliers", "structural_refinement", "track_bone_lengths"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -360,7 +360,9 @@ def bone_outliers(
         candidate = usable & (measured @ incidence > 0) & (off @ incidence == measured @ incidence)
         if not candidate.any():
             break
-        badness = np.where(candidate, off @ incidence + np.tanh(np.where(off, deviation, 0.0) @ incidence), -np.inf)
+        # tanh keeps the summed deviation below 1, so it only breaks ties in the count of deviating bones.
+        summed = np.tanh(np.where(off, deviation, 0.0) @ incidence)
+        badness = np.where(candidate, off @ incidence + summed, -np.inf)
         frames = np.flatnonzero(candidate.any(axis=1))
         rejected[frames, np.argmax(badness[frames], axis=1)] = True
     return rejected

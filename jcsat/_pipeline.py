@@ -73,6 +73,10 @@ class BaselineConfig:
     size lets runs of different scenes share one compilation."""
 
     def __post_init__(self) -> None:
+        if self.outlier_half_window < 0:
+            raise ValueError(f"outlier_half_window must be >= 0 frames, got {self.outlier_half_window}")
+        if not (self.outlier_distance >= 0.0 and np.isfinite(self.outlier_distance)):
+            raise ValueError(f"outlier_distance must be a finite number of metres >= 0, got {self.outlier_distance}")
         if not (self.duplicate_distance >= 0.0 and np.isfinite(self.duplicate_distance)):
             raise ValueError(f"duplicate_distance must be a finite number of metres >= 0, got {self.duplicate_distance}")
 

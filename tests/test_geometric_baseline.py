@@ -182,6 +182,13 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
     np.testing.assert_array_equal(single.person, rows.person[first])
 
 
+@pytest.mark.parametrize("field, bad", [("outlier_half_window", -1), ("outlier_distance", -0.1),
+                                        ("outlier_distance", float("nan"))])
+def test_bad_outlier_filter_is_named_before_anything_runs(field, bad):
+    with pytest.raises(ValueError, match=field):
+        jcsat.BaselineConfig(**{field: bad})
+
+
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
 def test_bad_duplicate_distance_is_named_before_anything_runs(bad):
     with pytest.raises(ValueError, match="duplicate_distance"):
@@ -270,10 +277,10 @@ def test_structural_refinement_keeps_unseen_joints_and_tracks_without_lengths():
     np.testing.assert_array_equal(refined[0, 5, wrist], raw[5, wrist])
     assert np.all(np.isfinite(refined)) and np.linalg.norm(refined[0, 6, wrist] - raw[6, wrist]) < 0.1
     assert frames == refined.shape[1]
-    unchecked = inspect.unwrap(jcsat.structural_refinement)  # the function's own check, not the test-time jaxtyping one
+    unchecked = inspect.unwrap(jcsat.structural_refinement)  # its own check, not the tests' jaxtyping hook
     with pytest.raises(ValueError, match="pixels must have shape"):
         unchecked(projections, body, np.stack([valid, valid]), np.stack([num_views, num_views]),
-                                    np.stack([pixels, pixels])[:, :, :, :2], np.stack([weight, weight]), 3, 0.01)
+                  np.stack([pixels, pixels])[:, :, :, :2], np.stack([weight, weight]), 3, 0.01)
 
 
 def test_bone_outliers_reject_the_wrong_joint_not_its_neighbours():
@@ -303,10 +310,9 @@ def test_structural_refinement_distrusts_bone_outliers():
     projections, truth, raw, pixels, weight = _noisy_track(5)
     wrist = geometry.BODY25.index("l_wrist")
     wrong = slice(4, 7)  # three frames (of 12) whose wrist detections belong to a point 0.8 m away in every view
-    homogeneous = np.einsum("vab,fb->fva", projections[:, :, :3], truth[wrong, wrist] + [0.8, 0.0, 0.0])
-    homogeneous += projections[:, :, 3]
     pixels = pixels.copy()
-    pixels[wrong, wrist] = homogeneous[..., :2] / homogeneous[..., 2:]
+    away = geometry.project_to_views(mocap.shelf_cameras(), truth[wrong, wrist] + [0.8, 0.0, 0.0])  # (V, 3, 2)
+    pixels[wrong, wrist] = np.swapaxes(np.asarray(away), 0, 1)
     raw = raw.copy()
     raw[:, wrist] = np.asarray(geometry.triangulate(projections, pixels[:, wrist], weight[:, wrist]).point)
     args = (projections, raw[None], np.ones((1,) + raw.shape[:2], bool), np.full((1,) + raw.shape[:2], 5),

@@ -125,9 +125,11 @@ def test_main_job_options_reach_the_baseline_config():
     defaults = shelf_jcsat.experiment_config(shelf_jcsat.parse_args([]), None)
     assert defaults == jcsat.ShelfExperimentConfig()
     args = shelf_jcsat.parse_args(["--structural-steps", "3", "--max-bone-deviation", "0.25",
-                                   "--outlier-filter", "3", "0", "--seed", "4"])
+                                   "--outlier-half-window", "3", "--outlier-distance", "0", "--seed", "4"])
     baseline = shelf_jcsat.experiment_config(args, None).baseline
     assert (baseline.outlier_half_window, baseline.outlier_distance, baseline.seed) == (3, 0.0, 4)
     assert (baseline.geometric.structural_steps, baseline.geometric.max_bone_deviation) == (3, 0.25)
     with pytest.raises(SystemExit):
-        shelf_jcsat.parse_args(["--outlier-filter", "2.5", "0.05"])
+        shelf_jcsat.parse_args(["--outlier-half-window", "2.5"])
+    with pytest.raises(ValueError, match="outlier_half_window"):
+        shelf_jcsat.experiment_config(shelf_jcsat.parse_args(["--outlier-half-window", "-1"]), None)
