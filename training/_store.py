@@ -41,7 +41,9 @@ def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> 
     if missing:
         raise FileNotFoundError(f"{path} is not a saved model folder: no {', '.join(missing)}")
     fields = json.loads((path / "config.json").read_text())
-    model = build({k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+    # The structure is traced abstractly: initialising every layer eagerly only to overwrite it cost most of a load.
+    model = nnx.eval_shape(lambda: build(fields))
     stored = _storable(nnx.state(model))
     leaves, treedef = jax.tree_util.tree_flatten_with_path(stored)
     with np.load(path / "state.npz") as arrays:
@@ -50,4 +52,8 @@ def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> 
             raise ValueError(f"{path / 'state.npz'} does not match the model of its config.json: no {absent[:3]}")
         values = [jnp.asarray(arrays[jax.tree_util.keystr(k)], v.dtype) for k, v in leaves]
     nnx.update(model, jax.tree_util.tree_unflatten(treedef, values))
+    if jax.tree.leaves(nnx.state(model, nnx.RngState)):
+        # The RNG keys and counters are not stored: the ones a fresh build has (one jitted build, the rest of
+        # whose initialisation XLA drops).
+        nnx.update(model, jax.jit(lambda: nnx.state(build(fields), nnx.RngState))())
     return model
