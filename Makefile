@@ -3,6 +3,8 @@ PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 DATA_ROOT ?= ../shared/data
+# Test processes (pytest-xdist); each test file runs whole in one of them, so its module fixtures are built once.
+TEST_WORKERS ?= 2
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,7 +20,7 @@ demo: install
 	$(if $(wildcard $(DATA_ROOT)/shelf),MVMOCAP_DATA_ROOT=$(DATA_ROOT)) $(PY) -m experiments.shelf_jcsat --out runs/demo
 
 test: install
-	$(PY) -m pytest -q --data-root=$(DATA_ROOT)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --data-root=$(DATA_ROOT)
 
 bench: install
 	$(PY) -m experiments.bench_geometry --json
