@@ -20,7 +20,7 @@ demo: install
 	$(if $(wildcard $(DATA_ROOT)/shelf),MVMOCAP_DATA_ROOT=$(DATA_ROOT)) $(PY) -m experiments.shelf_jcsat --out runs/demo
 
 test: install
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --data-root=$(DATA_ROOT)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --data-root=$(DATA_ROOT)
 
 bench: install
 	$(PY) -m experiments.bench_geometry --json

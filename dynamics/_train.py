@@ -32,6 +32,7 @@ import dataclasses
 import hashlib
 import json
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -41,6 +42,8 @@ import numpy as np
 import optax
 import tqdm
 from flax import nnx
+from jax.sharding import NamedSharding
+from jax.typing import ArrayLike
 
 import geometry
 import training
@@ -202,6 +205,43 @@ def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, pri
 # ----------------------------------------------------------------------------------------------
 # One stage.
 
+_ADAM = optax.scale_by_adam()
+"""Adam less its step size, for the trained parts and for the prior: the step takes its rates as values."""
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective: Callable, config: TrainConfig,
+                replicated: NamedSharding, rest: Any, body: geometry.BodyModel, state: TrainState, batch: Any,
+                key: jax.Array, learning_rate: ArrayLike, discriminator_lr: ArrayLike
+                ) -> tuple[TrainState, dict[str, jax.Array]]:
+    """One Adam step of the trained parameters on ``objective`` and one of the prior on its LSGAN loss. A
+    module-level function of hashable static arguments, so the runs of one setting share one compilation."""
+    prior = nnx.merge(prior_graphdef, state.prior)
+
+    def loss(params):
+        total, terms, fake = objective(config, body, nnx.merge(graphdef, params, rest), batch, key, prior)
+        return total, (terms, fake)
+
+    (total, (terms, fake)), grads = jax.value_and_grad(loss, has_aux=True)(state.params)
+    direction, opt = _ADAM.update(grads, state.opt, state.params)
+    targets = batch if isinstance(batch, Frames) else batch[1]
+    fake_rotations = jax.lax.stop_gradient(geometry.rotation_6d_to_matrix(fake.rot6d)).reshape(-1, 24, 3, 3)
+    fake_betas = jax.lax.stop_gradient(fake.betas).reshape(-1, fake.betas.shape[-1])
+
+    def prior_loss(prior_params):
+        prior = nnx.merge(prior_graphdef, prior_params)
+        real = prior(targets.rotations.reshape(-1, 24, 3, 3), targets.betas.reshape(-1, targets.betas.shape[-1]))
+        return lsgan_discriminator_loss(real, prior(fake_rotations, fake_betas))
+
+    d_loss, d_grads = jax.value_and_grad(prior_loss)(state.prior)
+    d_direction, prior_opt = _ADAM.update(d_grads, state.prior_opt, state.prior)
+    new_state = TrainState(optax.apply_updates(state.params, optax.tree.scale(-learning_rate, direction)),
+                           optax.apply_updates(state.prior, optax.tree.scale(-discriminator_lr, d_direction)),
+                           opt, prior_opt, state.step + 1, state.key)
+    metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
+    return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
+
+
 def _run_stage(name: str, config: TrainConfig, stage: StageConfig, workdir: Path, model: nnx.Module,
                trainable: Any, objective: Callable, sample: Callable[[jax.Array], Any],
                validate: Callable[[nnx.Module], dict[str, float]], body: geometry.BodyModel, *, resume: bool,
@@ -210,47 +250,22 @@ def _run_stage(name: str, config: TrainConfig, stage: StageConfig, workdir: Path
     replicated, batch_sharding = training.data_parallel_shardings(stage.batch_size)
     graphdef, params, rest = nnx.split(model, trainable, ...)
     prior_graphdef, prior_params = nnx.split(PosePrior(config.model.num_shapes, rngs=nnx.Rngs(config.seed + 1)))
-    optimizer = optax.adam(stage.schedule(stage.learning_rate))
-    prior_optimizer = optax.adam(stage.schedule(stage.discriminator_lr))
-    state = TrainState(params, prior_params, optimizer.init(params), prior_optimizer.init(prior_params),
-                       jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
-
-    @jax.jit
-    def train_step(state: TrainState, batch: Any, key: jax.Array) -> tuple[TrainState, dict[str, jax.Array]]:
-        prior = nnx.merge(prior_graphdef, state.prior)
-
-        def loss(params):
-            total, terms, fake = objective(config, body, nnx.merge(graphdef, params, rest), batch, key, prior)
-            return total, (terms, fake)
-
-        (total, (terms, fake)), grads = jax.value_and_grad(loss, has_aux=True)(state.params)
-        updates, opt = optimizer.update(grads, state.opt, state.params)
-        targets = batch if isinstance(batch, Frames) else batch[1]
-        fake_rotations = jax.lax.stop_gradient(geometry.rotation_6d_to_matrix(fake.rot6d)).reshape(-1, 24, 3, 3)
-        fake_betas = jax.lax.stop_gradient(fake.betas).reshape(-1, fake.betas.shape[-1])
-
-        def prior_loss(prior_params):
-            prior = nnx.merge(prior_graphdef, prior_params)
-            real = prior(targets.rotations.reshape(-1, 24, 3, 3), targets.betas.reshape(-1, targets.betas.shape[-1]))
-            return lsgan_discriminator_loss(real, prior(fake_rotations, fake_betas))
-
-        d_loss, d_grads = jax.value_and_grad(prior_loss)(state.prior)
-        d_updates, prior_opt = prior_optimizer.update(d_grads, state.prior_opt, state.prior)
-        new_state = TrainState(optax.apply_updates(state.params, updates), optax.apply_updates(state.prior, d_updates),
-                               opt, prior_opt, state.step + 1, state.key)
-        metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
-        return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
+    state = TrainState(params, prior_params, _ADAM.init(params), _ADAM.init(prior_params), jnp.asarray(0, jnp.int32),
+                       jax.random.key(config.seed))
+    learning_rate, discriminator_lr = stage.schedule(stage.learning_rate), stage.schedule(stage.discriminator_lr)
+    rest, body = jax.device_put((rest, body), replicated)
 
     def step(state: TrainState, i: int):
         sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
         batch = jax.device_put(sample(sample_key), batch_sharding)
-        return train_step(state, batch, dropout_key)
+        return _train_step(graphdef, prior_graphdef, objective, config, replicated, rest, body, state, batch,
+                           dropout_key, learning_rate(i), discriminator_lr(i))
 
     state = training.run_training(
         workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
         validate=lambda state: validate(nnx.merge(graphdef, state.params, rest)), replicated=replicated,
-        learning_rate=stage.schedule(stage.learning_rate), log=log, progress=progress, description=f"dynamics {name}")
+        learning_rate=learning_rate, log=log, progress=progress, description=f"dynamics {name}")
     return nnx.merge(graphdef, state.params, rest)
 
 
@@ -274,9 +289,13 @@ def compute_features(backbone: ResNetBackbone, crops: np.ndarray, batch_size: in
     return np.concatenate(chunks).astype(np.float32)
 
 
-def _mpjpe_mm(body, params: SMPLParams, rows: Frames) -> float:
+def _mpjpe_mm(body, params: SMPLParams, rows: Frames) -> jax.Array:
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
-    return 1000.0 * float(jnp.mean(geometry.mpjpe_root_relative(joints, jnp.asarray(rows.joints3d), 0)))
+    return 1000.0 * jnp.mean(geometry.mpjpe_root_relative(joints, jnp.asarray(rows.joints3d), 0))
+
+
+def _floats(metrics: dict[str, jax.Array]) -> dict[str, float]:
+    return {name: float(value) for name, value in metrics.items()}
 
 
 def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
@@ -305,13 +324,13 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
         index = np.asarray(jax.random.randint(key, (config.image.batch_size,), 0, frames.num_frames))
         return jax.tree.map(lambda column: column[index], frames)
 
+    # Validation is jitted (one program per stage): run eagerly, every operation was compiled on its own.
     @nnx.jit
-    def image_params(model, crops):
-        return model.hmr(model.backbone(crops))
+    def image_metrics(model, rows):
+        return {"val_mpjpe_mm": _mpjpe_mm(body, model.hmr(model.backbone(_crops(rows))), rows)}
 
     def validate_image(model: ImageRegressor) -> dict[str, float]:
-        rows = jax.tree.map(lambda column: column[::4], validation)
-        return {"val_mpjpe_mm": _mpjpe_mm(body, image_params(model, _crops(rows)), rows)}
+        return _floats(image_metrics(model, jax.tree.map(lambda column: column[::4], validation)))
 
     image_model = _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective,
                              sample_rows, validate_image, body, resume=resume, log=log, progress=progress)
@@ -331,27 +350,32 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
     phdt = PHDT(config.model, rngs=rngs)
     nnx.update(phdt.hmr, nnx.state(image_model.hmr))
 
-    def validate_movie(model: PHDT) -> dict[str, float]:
-        features, rows = validation_windows
-        params = model.regress(model.condition(jnp.asarray(features)))
+    @nnx.jit
+    def movie_metrics(model, features, rows):
+        params = model.regress(model.condition(features))
         first = model.receptive_field - 1
         return {"val_mpjpe_mm": _mpjpe_mm(body, jax.tree.map(lambda x: x[:, first:], params),
                                           jax.tree.map(lambda x: x[:, first:], rows))}
+
+    def validate_movie(model: PHDT) -> dict[str, float]:
+        return _floats(movie_metrics(model, *validation_windows))
 
     movie_parts = nnx.All(nnx.Param, nnx.Any(nnx.PathContains("movie"), nnx.PathContains("hmr"),
                                               nnx.PathContains("deltas")))
     phdt = _run_stage("movie", config, config.movie, workdir, phdt, movie_parts, _movie_objective, sample_windows,
                       validate_movie, body, resume=resume, log=log, progress=progress)
 
-    def validate_ar(model: PHDT) -> dict[str, float]:
-        features, rows = validation_windows
+    @nnx.jit
+    def ar_metrics(model, features, rows):
         T = config.observed
-        observed = model.observe(body, jnp.asarray(features[:, :T]), rows.boxes[:, :T], rows.K[:, :T])
+        observed = model.observe(body, features[:, :T], rows.boxes[:, :T], rows.K[:, :T])
         rollout = model.rollout(body, observed, config.horizon)
         future = jax.tree.map(lambda x: x[:, T:], rows)
-        root_error = jnp.linalg.norm(rollout.root - jnp.asarray(future.root), axis=-1)
         return {"val_future_mpjpe_mm": _mpjpe_mm(body, rollout.params, future),
-                "val_future_root_mm": 1000.0 * float(jnp.mean(root_error))}
+                "val_future_root_mm": 1000.0 * jnp.mean(jnp.linalg.norm(rollout.root - future.root, axis=-1))}
+
+    def validate_ar(model: PHDT) -> dict[str, float]:
+        return _floats(ar_metrics(model, *validation_windows))
 
     ar_parts = nnx.All(nnx.Param, nnx.Any(nnx.PathContains("ar"), nnx.PathContains("joint_encoder"),
                                            nnx.PathContains("translation")))

@@ -33,6 +33,7 @@ import optax
 import tqdm
 from flax import nnx
 from jax.sharding import NamedSharding
+from jax.typing import ArrayLike
 
 import geometry
 import mocap
@@ -111,6 +112,13 @@ class TrainConfig:
     def model_config(self) -> FlexConfig:
         return CONFIGS[self.model] if isinstance(self.model, str) else self.model
 
+    def learning_rates(self, step: int) -> tuple[float, float]:
+        """The generator's and the discriminator's rate at ``step`` (steps taken before it): a linear warm-up to
+        each peak, then a cosine decay to ``end_lr_fraction`` of it at the last step."""
+        return tuple(float(optax.warmup_cosine_decay_schedule(0.0, peak, self.warmup_steps, self.steps,
+                                                              peak * self.end_lr_fraction)(step))
+                     for peak in (self.generator_lr, self.discriminator_lr))
+
 
 class TrainState(NamedTuple):
     """Everything a step changes, plus the run's key: exactly what a checkpoint holds."""
@@ -128,16 +136,9 @@ class TrainState(NamedTuple):
     """``key(seed)``: step i uses ``fold_in(key, i)``."""
 
 
-def _schedule(config: TrainConfig, peak: float) -> optax.Schedule:
-    """Linear warm-up to ``peak``, then cosine decay to ``peak * end_lr_fraction`` at the last step."""
-    return optax.warmup_cosine_decay_schedule(0.0, peak, config.warmup_steps, config.steps,
-                                              peak * config.end_lr_fraction)
-
-
-def _optimizers(config: TrainConfig) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
-    """AMSGrad for the generator and for the discriminator."""
-    return (optax.amsgrad(_schedule(config, config.generator_lr)),
-            optax.amsgrad(_schedule(config, config.discriminator_lr)))
+_AMSGRAD = optax.scale_by_amsgrad()
+"""The official trainer's AMSGrad, for the generator and for the discriminator, less its step size: train_step takes
+the step's rates as values, so runs that differ only in their schedules share one compiled step."""
 
 
 def _pool_file(config: DataConfig, count: int, first_seed: int, cache_dir: Path) -> Path:
@@ -174,30 +175,31 @@ def _training_pool(config: TrainConfig, cache_dir: Path, progress: bool) -> Batc
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def train_step(
-    graphdef: nnx.GraphDef, discriminator_graphdef: nnx.GraphDef, config: TrainConfig, replicated: NamedSharding,
-    state: TrainState, batch: Batch, key: jax.Array,
+    graphdef: nnx.GraphDef, discriminator_graphdef: nnx.GraphDef, losses: LossWeights, replicated: NamedSharding,
+    state: TrainState, batch: Batch, key: jax.Array, generator_lr: ArrayLike, discriminator_lr: ArrayLike,
 ) -> tuple[TrainState, dict[str, jax.Array]]:
-    """One generator step on Eq. 9 and one discriminator step on its LSGAN loss (pure; see the module docstring)."""
-    generator_optimizer, discriminator_optimizer = _optimizers(config)
+    """One generator step on Eq. 9 and one discriminator step on its LSGAN loss (pure; see the module docstring),
+    at the step's rates (:meth:`TrainConfig.learning_rates`)."""
     discriminator = nnx.merge(discriminator_graphdef, state.discriminator)
 
     def generator_objective(params):
         model = nnx.merge(graphdef, params, state.rest, copy=True)
         outputs = model(batch.points_2d, batch.confidences, key=key)
-        total, terms = generator_loss(outputs, batch, discriminator, config.losses)
+        total, terms = generator_loss(outputs, batch, discriminator, losses)
         return total, (terms, outputs, nnx.state(model, nnx.Not(nnx.Param)))
 
     (total, (terms, outputs, rest)), grads = jax.value_and_grad(generator_objective, has_aux=True)(state.params)
-    updates, generator_opt = generator_optimizer.update(grads, state.generator_opt, state.params)
-    params = optax.apply_updates(state.params, updates)
+    direction, generator_opt = _AMSGRAD.update(grads, state.generator_opt, state.params)
+    params = optax.apply_updates(state.params, optax.tree.scale(-generator_lr, direction))
 
     def discriminator_objective(discriminator_params):
         return discriminator_loss(nnx.merge(discriminator_graphdef, discriminator_params), outputs, batch)
 
     d_loss, d_grads = jax.value_and_grad(discriminator_objective)(state.discriminator)
-    d_updates, discriminator_opt = discriminator_optimizer.update(d_grads, state.discriminator_opt, state.discriminator)
-    new_state = TrainState(params, rest, optax.apply_updates(state.discriminator, d_updates), generator_opt,
-                           discriminator_opt, state.step + 1, state.key)
+    d_direction, discriminator_opt = _AMSGRAD.update(d_grads, state.discriminator_opt, state.discriminator)
+    new_state = TrainState(params, rest,
+                           optax.apply_updates(state.discriminator, optax.tree.scale(-discriminator_lr, d_direction)),
+                           generator_opt, discriminator_opt, state.step + 1, state.key)
     metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
     return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
 
@@ -244,22 +246,21 @@ def train(
     rngs = nnx.Rngs(config.seed)
     graphdef, params, rest = nnx.split(Flex(model_config, rngs=rngs), nnx.Param, ...)
     discriminator_graphdef, discriminator = nnx.split(Discriminator(model_config, rngs=rngs))
-    generator_optimizer, discriminator_optimizer = _optimizers(config)
-    state = TrainState(params, rest, discriminator, generator_optimizer.init(params),
-                       discriminator_optimizer.init(discriminator), jnp.asarray(0, jnp.int32),
-                       jax.random.key(config.seed))
+    state = TrainState(params, rest, discriminator, _AMSGRAD.init(params), _AMSGRAD.init(discriminator),
+                       jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
 
     def step(state: TrainState, i: int) -> tuple[TrainState, dict[str, jax.Array]]:
         sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
         index = np.asarray(jax.random.randint(sample_key, (config.batch_size,), 0, config.pool_size))
         batch = jax.device_put(jax.tree.map(lambda x: x[index], pool), batch_sharding)
-        return train_step(graphdef, discriminator_graphdef, config, replicated, state, batch, dropout_key)
+        return train_step(graphdef, discriminator_graphdef, config.losses, replicated, state, batch, dropout_key,
+                          *config.learning_rates(i))
 
     state = training.run_training(
         workdir, config, state, step, steps=config.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
         validate=lambda state: _validate(graphdef, state, validation, config.batch_size), replicated=replicated,
-        learning_rate=_schedule(config, config.generator_lr),
+        learning_rate=lambda i: config.learning_rates(i)[0],
         log=log, progress=progress, description="flex train")
     training.save_model(workdir / "model", model_config, nnx.merge_state(state.params, state.rest))
     return nnx.merge(graphdef, state.params, state.rest)

@@ -70,6 +70,8 @@ from ._otap import OTAP as OTAP
 from ._pipeline import run_geometric_baseline as run_geometric_baseline
 from ._pipeline import BaselineConfig as BaselineConfig
 from ._pipeline import BaselineResult as BaselineResult
+from ._pipeline import PersonTracks as PersonTracks
+from ._pipeline import track_people as track_people
 from ._plot import matched_tracks as matched_tracks
 from ._plot import plot_frame as plot_frame
 from ._plot import MATCH_DISTANCE_M as MATCH_DISTANCE_M
@@ -93,11 +95,11 @@ __all__ = [
     "JointCloudConfig", "kmeans", "KMeansResult", "learning_rate_schedule", "load_model", "LossConfig",
     "make_optimizer", "MATCH_DISTANCE_M", "matched_tracks", "METHODS", "numpy_joint_cloud_frame", "otap",
     "OTAP", "parameter_count", "pcp_hinge_loss", "people_count", "person_joint_cloud", "PersonJointCloud",
-    "plot_frame", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
+    "PersonTracks", "plot_frame", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
     "reject_temporal_outliers", "run_geometric_baseline", "run_shelf_experiment", "sample_batch",
     "scene_windows", "ShelfExperimentConfig", "ShelfExperimentResult", "SHIPPED_MODEL", "sinkhorn_plan",
-    "structural_refinement", "synthetic_validation", "track_bone_lengths", "track_centres", "train", "TRAIN_CLIPS",
-    "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
+    "structural_refinement", "synthetic_validation", "track_bone_lengths", "track_centres", "track_people", "train",
+    "TRAIN_CLIPS", "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
     "triangulate_candidate_pair", "VALIDATION_CLIPS", "view_pairs", "window_batch", "window_frames",
     "WindowDataset",
 ]

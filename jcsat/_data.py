@@ -1,9 +1,9 @@
 """Training windows for the JCSAT model from synthetic Shelf-rig scenes (paper Sec. 4.1.3, reference sections 3-5).
 
 A scene (:func:`mocap.synthesize_scene`: the shipped Shelf calibration, CMU clips, the realistic
-detector) goes through exactly the test-time path: detections -> Joint Cloud -> per-frame K-Means
-persons -> tracks -> :func:`~jcsat.person_joint_cloud`. Ground truth never enters that path; it is
-used only afterwards, to label each (track, frame) with the ground-truth person whose BODY25 mid-hip
+detector) goes through exactly the test-time path, :func:`~jcsat.track_people`: detections -> Joint Cloud ->
+per-frame K-Means persons -> tracks -> :func:`~jcsat.person_joint_cloud`. Ground truth never enters that path; it
+is used only afterwards, to label each (track, frame) with the ground-truth person whose BODY25 mid-hip
 lies within ``match_radius`` of the track's centre (the JCSAT protocol's 0.5 m).
 
 Storage (:class:`WindowDataset`): one *row* per (track, frame) of every kept track, in world
@@ -37,8 +37,9 @@ import geometry
 import mocap
 from geometry import BODY25
 
-from ._clustering import ClusterConfig, cluster_frames, people_count, person_joint_cloud, track_centres
-from ._joint_cloud import JointCloudConfig, build_joint_cloud
+from ._clustering import ClusterConfig
+from ._joint_cloud import JointCloudConfig
+from ._pipeline import track_people
 
 __all__ = [
     "TRAIN_CLIPS",
@@ -169,11 +170,7 @@ def scene_windows(scene: mocap.Scene, config: DataConfig, key: ArrayLike, scene_
     """Windows of ONE synthetic scene, through the test-time pipeline (``key`` seeds K-Means)."""
     largest = max(len(c) for frame in scene.detections for det in frame for c in det.joints)
     padded = mocap.pad_detections(scene.detections, max(config.max_candidates, largest))
-    cloud = build_joint_cloud(scene.rig, padded.xy, padded.score, padded.mask, config.joint_cloud)
-    counts = people_count(padded.score, padded.mask, config.cluster)
-    clusters = cluster_frames(cloud, counts, key, config.cluster)
-    track_of = track_centres(clusters.centres, clusters.active, config.cluster.track_gate)
-    tracks = person_joint_cloud(cloud, clusters, track_of, config.cluster)
+    tracks = track_people(scene.rig, padded, key, config.joint_cloud, config.cluster).person_cloud
 
     person = _label_rows(tracks.centre, tracks.present, scene.body25[:, :, _MID_HIP], config.match_radius)
     starts = np.arange(0, person.shape[1] - config.window + 1, config.window_stride)

@@ -32,7 +32,7 @@ from ._geometric import (
 )
 from ._joint_cloud import JointCloud, JointCloudConfig, build_joint_cloud
 
-__all__ = ["BaselineConfig", "BaselineResult", "run_geometric_baseline"]
+__all__ = ["BaselineConfig", "BaselineResult", "PersonTracks", "run_geometric_baseline", "track_people"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,6 +105,39 @@ def _timed(seconds: dict[str, float], name: str, fn, *args):
     return out
 
 
+class PersonTracks(NamedTuple):
+    """The stages the geometric baseline and the model share: the Joint Cloud, its people per frame and their tracks."""
+
+    cloud: JointCloud
+    clusters: FrameClusters
+    track_of: Int[np.ndarray, "F K"]
+    """Track of each frame's cluster (-1: none)."""
+    person_cloud: PersonJointCloud
+    """Per track and frame, the candidates near the person's centre: the model's input."""
+    seconds: dict[str, float]
+    """Wall time of each stage (including compilation on the first call)."""
+
+
+def track_people(
+    rig: Camera,
+    padded: mocap.PaddedDetections,
+    key: jax.Array,
+    joint_cloud: JointCloudConfig = JointCloudConfig(),
+    cluster: ClusterConfig = ClusterConfig(),
+) -> PersonTracks:
+    """Padded detections seen by ``rig`` -> Joint Cloud -> people per frame (K-Means seeded by ``key``) -> tracks
+    -> each track's candidate tensor."""
+    seconds: dict[str, float] = {}
+    cloud = _timed(seconds, "joint_cloud", build_joint_cloud, rig, padded.xy, padded.score, padded.mask, joint_cloud)
+    counts = people_count(padded.score, padded.mask, cluster)
+    clusters = _timed(seconds, "clustering", cluster_frames, cloud, counts, key, cluster)
+    start = time.perf_counter()
+    track_of = track_centres(clusters.centres, clusters.active, cluster.track_gate)
+    seconds["tracking"] = time.perf_counter() - start
+    person_cloud = _timed(seconds, "model_tensor", person_joint_cloud, cloud, clusters, track_of, cluster)
+    return PersonTracks(cloud, clusters, track_of, person_cloud, seconds)
+
+
 def _bridge_gaps(present: Bool[np.ndarray, "T F"], max_gap: int) -> Bool[np.ndarray, "T F"]:
     """``present`` with every run of at most ``max_gap`` absent frames between two present ones set."""
     bridged = present.copy()
@@ -129,16 +162,9 @@ def run_geometric_baseline(
     frame_indices = np.asarray(frame_indices)
     if len(frame_indices) != len(detections):
         raise ValueError(f"{len(detections)} frames of detections but {len(frame_indices)} frame indices")
-    seconds: dict[str, float] = {}
     padded = mocap.pad_detections(detections, config.max_candidates)
-    cloud = _timed(seconds, "joint_cloud", build_joint_cloud, rig, padded.xy, padded.score, padded.mask,
-                   config.joint_cloud)
-    counts = people_count(padded.score, padded.mask, config.cluster)
-    clusters = _timed(seconds, "clustering", cluster_frames, cloud, counts, jax.random.key(config.seed), config.cluster)
-    start = time.perf_counter()
-    track_of = track_centres(clusters.centres, clusters.active, config.cluster.track_gate)
-    seconds["tracking"] = time.perf_counter() - start
-    person_cloud = _timed(seconds, "model_tensor", person_joint_cloud, cloud, clusters, track_of, config.cluster)
+    cloud, clusters, track_of, person_cloud, seconds = track_people(rig, padded, jax.random.key(config.seed),
+                                                                    config.joint_cloud, config.cluster)
     poses = _timed(seconds, "geometric", geometric_poses, rig, padded.xy, padded.score, cloud, clusters,
                    config.geometric)
 

@@ -21,6 +21,7 @@ gives N devices.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -32,6 +33,7 @@ import numpy as np
 import optax
 from flax import nnx
 from jax.sharding import NamedSharding
+from jax.typing import ArrayLike
 
 import geometry
 import training
@@ -135,7 +137,7 @@ class TrainState(NamedTuple):
 
 def init_state(config: TrainConfig, params: Any, rest: Any) -> TrainState:
     """Step 0: fresh optimiser state for ``params`` and the run's key ``key(config.seed)``."""
-    opt_state = make_optimizer(config, params).init(params)
+    opt_state = make_optimizer(config.weight_decay, config.grad_clip).init(params)
     return TrainState(params, rest, opt_state, jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
 
 
@@ -148,36 +150,44 @@ def learning_rate_schedule(config: TrainConfig) -> optax.Schedule:
     return optax.warmup_cosine_decay_schedule(0.0, config.peak_lr, config.warmup_steps, config.steps, config.end_lr)
 
 
-def make_optimizer(config: TrainConfig, params: Any) -> optax.GradientTransformation:
-    """AdamW (beta 0.9, 0.999) on :func:`learning_rate_schedule`, decaying only parameters with ndim >= 2."""
-    decay = jax.tree.map(lambda p: p.ndim >= 2, params)
-    adamw = optax.adamw(learning_rate_schedule(config), b1=0.9, b2=0.999, weight_decay=config.weight_decay, mask=decay)
-    return adamw if config.grad_clip is None else optax.chain(optax.clip_by_global_norm(config.grad_clip), adamw)
+def _matrices(params: Any) -> Any:
+    return jax.tree.map(lambda p: p.ndim >= 2, params)
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2))
+@functools.cache
+def make_optimizer(weight_decay: float, grad_clip: float | None = None) -> optax.GradientTransformation:
+    """AdamW (beta 0.9, 0.999) less its step size, decaying only parameters with ndim >= 2, after global-norm
+    clipping to ``grad_clip`` (None: none). :func:`train_step` scales by the step's learning rate, a value, so
+    runs that differ only in their schedule share one compiled step; equal settings give the same (cached)
+    object, a static argument of the step."""
+    adamw = optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999), optax.add_decayed_weights(weight_decay, _matrices))
+    return adamw if grad_clip is None else optax.chain(optax.clip_by_global_norm(grad_clip), adamw)
+
+
+@partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def train_step(
-    graphdef: nnx.GraphDef, config: TrainConfig, replicated: NamedSharding, state: TrainState, batch: Batch,
-    key: jax.Array,
+    graphdef: nnx.GraphDef, losses: LossConfig, optimizer: optax.GradientTransformation, replicated: NamedSharding,
+    state: TrainState, batch: Batch, key: jax.Array, learning_rate: ArrayLike,
 ) -> tuple[TrainState, dict[str, jax.Array]]:
-    """One AdamW step on ``batch`` (Eq. 15); ``key`` drives the model's candidate masking and dropout.
+    """One AdamW step on ``batch`` (Eq. 15) at ``learning_rate``; ``key`` drives the model's candidate masking and
+    dropout; ``optimizer`` is :func:`make_optimizer`'s.
 
     Pure: the new state and the step's metrics (each loss term, the total, the gradient norm). With
     the batch sharded along its first axis, each device computes its part of the batch and the
     gradient is reduced across devices; the new state is constrained to ``replicated``. The static
-    arguments are hashable, so every :func:`train` call with the same model and config reuses one
-    compilation.
+    arguments are hashable, so every :func:`train` call with the same model, losses and optimizer settings
+    reuses one compilation, whatever its schedule.
     """
 
     def loss_fn(params):
         model = nnx.merge(graphdef, params, state.rest)
         pred = model(batch.points, batch.mask, key=key)
-        total, terms = jcsat_loss(pred, batch, config.losses)
+        total, terms = jcsat_loss(pred, batch, losses)
         return total, (terms, nnx.state(model, nnx.Not(nnx.Param)))
 
     (total, (terms, rest)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
-    updates, opt_state = make_optimizer(config, state.params).update(grads, state.opt_state, state.params)
-    params = optax.apply_updates(state.params, updates)
+    direction, opt_state = optimizer.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, optax.tree.scale(-learning_rate, direction))
     new_state = TrainState(params, rest, opt_state, state.step + 1, state.key)
     metrics = {"loss": total, **terms, "grad_norm": optax.tree.norm(grads)}
     return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
@@ -252,11 +262,13 @@ def train(
             raise ValueError(f"init_model {config.init_model} is a {start.config} model, not the run's {model_config}")
         nnx.update(model, nnx.state(start, nnx.Param))
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
+    optimizer, schedule = make_optimizer(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
 
     def step(state: TrainState, i: int) -> tuple[TrainState, dict[str, jax.Array]]:
         sample_key, mask_key = jax.random.split(jax.random.fold_in(state.key, i))
         batch = _sample(train_data, sample_key, config.batch_size, config.data.window)
-        return train_step(graphdef, config, replicated, state, jax.device_put(batch, batch_sharding), mask_key)
+        return train_step(graphdef, config.losses, optimizer, replicated, state, jax.device_put(batch, batch_sharding),
+                          mask_key, schedule(i))
 
     eval_fn = partial(_eval_step, graphdef)
     state = training.run_training(
@@ -264,7 +276,7 @@ def train(
         log_interval=config.log_interval, checkpoint_interval=config.checkpoint_interval,
         validation_interval=config.validation_interval,
         validate=lambda state: _validate(eval_fn, state, validation_data, config, batch_sharding),
-        replicated=replicated, learning_rate=learning_rate_schedule(config), log=log, progress=progress,
+        replicated=replicated, learning_rate=schedule, log=log, progress=progress,
         description="jcsat train")
     training.save_model(workdir / "model", model_config, nnx.merge_state(state.params, state.rest))
     return nnx.merge(graphdef, state.params, state.rest)

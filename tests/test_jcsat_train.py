@@ -18,8 +18,8 @@ import mocap
 from geometry import SHELF15
 from jcsat import (
     CONFIGS, JCSAT, TRAIN_CONFIGS, VALIDATION_CLIPS, Batch, DataConfig, JCSATConfig, TrainConfig, bone_losses,
-    build_dataset, init_state, jcsat_loss, load_model, pcp_hinge_loss, project_normalised, projection_loss,
-    reconstruction_loss, sample_batch, train, train_step, window_batch,
+    build_dataset, init_state, jcsat_loss, learning_rate_schedule, load_model, make_optimizer, pcp_hinge_loss,
+    project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step, window_batch,
 )
 import training
 from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
@@ -230,9 +230,11 @@ def _fixed_batch_steps(config: TrainConfig, dataset, num_steps: int):
     replicated, sharded = training.data_parallel_shardings(config.batch_size)
     state = jax.device_put(init_state(config, params, rest), replicated)
     batch = jax.device_put(sample_batch(dataset, jax.random.key(1), config.batch_size, config.data.window), sharded)
+    optimizer, schedule = make_optimizer(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
     losses = []
     for i in range(num_steps):
-        state, metrics = train_step(graphdef, config, replicated, state, batch, jax.random.key(i))
+        state, metrics = train_step(graphdef, config.losses, optimizer, replicated, state, batch, jax.random.key(i),
+                                    schedule(i))
         losses.append(float(metrics["loss"]))
     return state, losses
 
@@ -249,7 +251,8 @@ def test_parallel_scene_build_matches_one_process(dataset):
 
 
 def test_steps_reduce_loss_on_a_fixed_batch(dataset, cache_dir):
-    # The config of the runs below: the step compiled here is reused by them.
+    # The model, losses and optimizer settings of the runs below: the step compiled here is reused by them (the
+    # zero-rate run of test_init_model_starts_the_run too: rates are arguments).
     state, losses = _fixed_batch_steps(_config(cache_dir=str(cache_dir)), dataset, 12)
     assert all(np.isfinite(losses)) and losses[-1] < 0.7 * losses[0], losses
     assert int(state.step) == 12

@@ -176,15 +176,9 @@ def test_windows_and_people_count():
 def test_model_tensor_layout():
     scene = mocap.synthesize_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
                                    detector=mocap.PERFECT_DETECTOR)
-    # The baseline's stages up to the model tensor (run_geometric_baseline, less its pose triangulation and
-    # structural refinement, which tests/test_geometric_baseline.py covers).
-    padded = mocap.pad_detections(scene.detections, 6)
-    cloud = jcsat.build_joint_cloud(scene.rig, padded.xy, padded.score, padded.mask)
-    config = jcsat.ClusterConfig()
-    clusters = jcsat.cluster_frames(cloud, jcsat.people_count(padded.score, padded.mask, config), jax.random.key(0),
-                                    config)
-    track_of = jcsat.track_centres(clusters.centres, clusters.active, config.track_gate)
-    tensor = jcsat.person_joint_cloud(cloud, clusters, track_of, config)
+    tracks = jcsat.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
+    assert set(tracks.seconds) == {"joint_cloud", "clustering", "tracking", "model_tensor"}
+    tensor = tracks.person_cloud
     tracks = tensor.present.shape[0]
     assert tensor.points.shape == (tracks, 4, 10, 4, 25, 3) and tensor.mask.shape == (tracks, 4, 10, 4, 25)
     assert tracks >= 2 and tensor.present.sum() >= 8
