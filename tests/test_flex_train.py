@@ -68,6 +68,18 @@ def test_steps_fit_a_fixed_batch_and_train_the_discriminator(cache_dir):
     assert int(state.step) == 30
 
 
+def test_the_step_moves_at_the_rates_it_is_given(cache_dir):
+    """Zero rates (the same compiled step as the runs here) keep both networks' starting parameters."""
+    config = _config(cache_dir, generator_lr=0.0, discriminator_lr=0.0)
+    state, _ = _fixed_batch_steps(config, 2)
+    rngs = nnx.Rngs(config.seed)
+    generator = nnx.state(flex.Flex(config.model_config, rngs=rngs), nnx.Param)
+    discriminator = nnx.state(flex.Discriminator(config.model_config, rngs=rngs))
+    for trained, fresh in ((state.params, generator), (state.discriminator, discriminator)):
+        for a, b in zip(jax.tree.leaves(trained), jax.tree.leaves(fresh), strict=True):
+            assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_pool_is_cached_and_float32(cache_dir):
     first = flex.build_pool(DATA, 2, 100, cache_dir, progress=False)
     again = flex.build_pool(DATA, 2, 100, cache_dir, progress=False)
