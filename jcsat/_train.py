@@ -21,9 +21,8 @@ gives N devices.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -154,7 +153,7 @@ def _matrices(params: Any) -> Any:
     return jax.tree.map(lambda p: p.ndim >= 2, params)
 
 
-@functools.cache
+@cache
 def make_optimizer(weight_decay: float, grad_clip: float | None = None) -> optax.GradientTransformation:
     """AdamW (beta 0.9, 0.999) less its step size, decaying only parameters with ndim >= 2, after global-norm
     clipping to ``grad_clip`` (None: none). :func:`train_step` scales by the step's learning rate, a value, so
