@@ -131,9 +131,7 @@ def track_people(
     cloud = _timed(seconds, "joint_cloud", build_joint_cloud, rig, padded.xy, padded.score, padded.mask, joint_cloud)
     counts = people_count(padded.score, padded.mask, cluster)
     clusters = _timed(seconds, "clustering", cluster_frames, cloud, counts, key, cluster)
-    start = time.perf_counter()
-    track_of = track_centres(clusters.centres, clusters.active, cluster.track_gate)
-    seconds["tracking"] = time.perf_counter() - start
+    track_of = _timed(seconds, "tracking", track_centres, clusters.centres, clusters.active, cluster.track_gate)
     person_cloud = _timed(seconds, "model_tensor", person_joint_cloud, cloud, clusters, track_of, cluster)
     return PersonTracks(cloud, clusters, track_of, person_cloud, seconds)
 

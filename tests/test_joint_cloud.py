@@ -176,9 +176,9 @@ def test_windows_and_people_count():
 def test_model_tensor_layout():
     scene = mocap.synthesize_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
                                    detector=mocap.PERFECT_DETECTOR)
-    tracks = jcsat.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
-    assert set(tracks.seconds) == {"joint_cloud", "clustering", "tracking", "model_tensor"}
-    tensor = tracks.person_cloud
+    people = jcsat.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
+    assert set(people.seconds) == {"joint_cloud", "clustering", "tracking", "model_tensor"}
+    tensor = people.person_cloud
     tracks = tensor.present.shape[0]
     assert tensor.points.shape == (tracks, 4, 10, 4, 25, 3) and tensor.mask.shape == (tracks, 4, 10, 4, 25)
     assert tracks >= 2 and tensor.present.sum() >= 8
