@@ -1,0 +1,47 @@
+"""The documentation cannot rot: the README's Python example runs and prints what the README says it prints,
+and every relative link in README.md, CHANGELOG.md and docs/*.md points at a file of the repository."""
+
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+PAGES = [README, REPO / "CHANGELOG.md", *sorted((REPO / "docs").glob("*.md"))]
+
+_LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+_PYTHON_BLOCK = re.compile(r"^```python\n(.*?)^```", re.DOTALL | re.MULTILINE)
+
+
+def relative_links(markdown: str) -> list[str]:
+    """Targets of the Markdown links and images that are paths in the repository (no scheme, no bare anchor),
+    without their ``#anchor``."""
+    targets = (m.group(1) for m in _LINK.finditer(markdown))
+    return [t.split("#")[0] for t in targets if not re.match(r"[a-z][a-z0-9+.-]*:|#", t)]
+
+
+def test_readme_example_runs_and_prints_what_the_readme_says():
+    readme = README.read_text()
+    (example,) = _PYTHON_BLOCK.findall(readme)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        exec(compile(example, str(README), "exec"), {"__name__": "readme_example"})
+    lines = printed.getvalue().splitlines()
+    assert lines, "the README example prints nothing"
+    for line in lines:
+        assert f"`{line}`" in readme, f"the README example printed {line!r}, which the README does not quote"
+
+
+def test_link_finder_sees_the_readme_links():
+    links = relative_links(README.read_text())
+    assert {"docs/protocols.md", "docs/jcsat.md", "docs/figures/shelf_frame.png", "LICENSE"} <= set(links)
+    assert relative_links("[a](https://x.org/y.md) [b](#top) [c](docs/c.md#part) ![d](e.png)") == ["docs/c.md", "e.png"]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.relative_to(REPO).as_posix() for p in PAGES])
+def test_relative_links_point_at_files(page):
+    missing = [t for t in relative_links(page.read_text()) if not (page.parent / t).exists()]
+    assert not missing, f"{page.relative_to(REPO)} links to missing files: {missing}"
