@@ -1,7 +1,7 @@
 """The per-frame loss ``L_t`` (thesis Eq. 3.9-3.11, 4.10-4.11) and the sequence terms of Eq. 4.9 and 4.12.
 
 The thesis gives no loss weights (it tuned learning rates only); :class:`LossWeights` defaults to HMMR's
-(``dynamics_reference.md`` section 2: 60 for the 2D, 3D-joint and SMPL terms, 1 for the adversarial term), with
+(``docs/dynamics.md``: 60 for the 2D, 3D-joint and SMPL terms, 1 for the adversarial term), with
 two deviations stated on the fields: a weak shape prior, because our bodies' shapes are drawn from N(0, 1)
 and a unit prior would pull them to the mean; and the translation term on the same scale as the 3D terms.
 

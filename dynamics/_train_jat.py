@@ -13,7 +13,7 @@ JAT trains on single tracks (``N = 1``); MPJAT's batches are two-person scenes o
 with probability ``two_person_fraction`` per step (two shapes, two compilations, no padding). :func:`train_all`
 runs the four models of the evaluation: JAT; JAT without the Joint-Aware Bias (Table 5.5), which shares JAT's
 conditioning networks and trains its own ``f_AR``; MPJAT, initialised from JAT with the agent-aware
-sub-modules duplicated from their single-person counterparts (``dynamics_reference.md``); and MPJAT without the
+sub-modules duplicated from their single-person counterparts (``docs/dynamics.md``); and MPJAT without the
 interpenetration loss (Table 5.9).
 """
 

@@ -2,7 +2,7 @@
 
     .venv/bin/python -m experiments.shelf_eval --pred run.jsonl [--protocol all] [--json]
 
-Prints, per matching protocol (``shelf_protocol.md`` section 5), the per-actor PCP with part counts
+Prints, per matching protocol (``docs/protocols.md``), the per-actor PCP with part counts
 and VoxelPose bone groups, joint precision / recall at 0.2 m, MPJPE and Recall@500mm, averaged over
 actors 1-3. The 4D-association output converted with ``mocap.predictions_from_4dassoc`` gives A1-A3
 PCP 99.7 / 91.4 / 97.7 (avg 96.27) under every protocol.

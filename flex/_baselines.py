@@ -1,6 +1,6 @@
 """The camera-dependent baselines of FLEX's Table 1 and the metrics of the experiment.
 
-FLEX is compared with methods that need the extrinsics (paper Sect. 4, spec ``flex_reference.md`` sections 7-9):
+FLEX is compared with methods that need the extrinsics (paper Sect. 4, ``docs/flex.md``):
 triangulation given the true cameras, given cameras whose extrinsics are off by a relative Gaussian error (3 % and
 4 %, "imitating" estimated calibration), and, in the dynamic setting, given a stale calibration of moving cameras.
 :func:`triangulation_baseline` runs such a baseline on a :class:`~flex.Batch` and returns what FLEX is scored on:

@@ -4,9 +4,9 @@ Each term is the mean over the batch (the paper's expectation) and over the entr
 frames, joints) of a squared Euclidean norm of the paper's natural vector: a joint's xyz for L_P, the skeleton's
 10 lengths for L_S, a scalar for L_R, a frame's 2 contacts for L_F, a foot's velocity for L_FC. Lengths are in
 units of the sample's scale ``alpha``, the mean of its 10 true bone lengths (about 0.23 m), as the official code
-normalises its 3D targets (spec section 5): in metres the squared position errors would be about 20 times
+normalises its 3D targets (``docs/flex.md``): in metres the squared position errors would be about 20 times
 smaller and the adversarial term, an order of magnitude larger than all of them, would outweigh them. Readings
-of the paper, on purpose (spec ``flex_reference.md`` sections 4 and 8):
+of the paper, on purpose (``docs/flex.md``):
 
 - L_P (Eq. 3) compares the 17 Human3.6M joints (the FLEX20 duplicates dropped: they repeat the root and the
   thorax), root-relative, in each view's camera frame with the root rotation kept.

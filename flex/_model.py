@@ -22,7 +22,7 @@ features ``V`` (``3J`` channels per view and frame). Then (Fig. 3, 14, 15):
   q[t]``; the root's is applied to each view's root rotation.
 
 Every convolution and expansion is followed by batch normalisation, a leaky ReLU and dropout (App. D). Sizes
-follow Table 6 and the spec (``flex_reference.md`` section 3); :data:`CONFIGS` has the paper's and a CPU one.
+follow Table 6 and the official code (``docs/flex.md``); :data:`CONFIGS` has the paper's and a CPU one.
 
 Camera model (weak perspective, no calibration): the root depth is predicted in the normalised camera of each
 view, whose image coordinates are the normalised ones (origin at the view's mean root image position ``centre``,

@@ -1,7 +1,7 @@
 """FLEX's input normalisation: 2D joints in pixels -> calibration-free features, one view at a time.
 
 FLEX uses no intrinsic or extrinsic parameters (paper Sec. 3 and App. E.2). Where the official code divides
-pixels by the image resolution and z-scores them with dataset statistics (spec ``flex_reference.md`` section 5),
+pixels by the image resolution and z-scores them with dataset statistics (``docs/flex.md``),
 this normalisation uses only statistics of the view's own 2D sequence, so that it is unchanged when a view's
 image coordinates are shifted and scaled (another principal point, focal length, image size or crop):
 

@@ -7,7 +7,7 @@ are hashable metadata).
 
 Shelf15 (:data:`~geometry.SHELF15`) is the joint set in which Shelf and Campus are scored: the 14
 dataset joints plus joint 14, the mid-hip. Detector formats have no "bottom of head" / "top of head"
-joints, so every published method derives them with its own rule (``shelf_protocol.md`` section 6);
+joints, so every published method derives them with its own rule (``docs/protocols.md``, "Head and neck");
 the rule changes the Head PCP part and the Torso end, so it is an explicit argument, :data:`HeadRule`.
 """
 

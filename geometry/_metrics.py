@@ -213,7 +213,7 @@ def pcp(
 
     For SHELF15 the torso starts at joint 14: the 4DA/JCSAT convention when joint 14 is the
     prediction's own pelvis; for VoxelPose/MVPose set the prediction's joint 14 to the mean of its
-    joints 2 and 3 first (shelf_protocol.md section 4).
+    joints 2 and 3 first (docs/protocols.md, "Parts and the PCP rule").
     """
     if not skeleton.pcp_parts:
         raise ValueError(f"{skeleton.name} defines no PCP parts")
@@ -322,9 +322,9 @@ def joint_precision_recall(
     pred_detected: Bool[ArrayLike, "*b J"] | None = None,
     gt_present: Bool[ArrayLike, "*b J"] | None = None,
 ) -> JointHits:
-    """Joint detection outcome of matched pairs, JCSAT ``evaluate.py`` semantics (shelf_protocol.md
-    section 7): a joint is detected if ``pred_detected`` says so, by default if it is not exactly
-    (0, 0, 0); correct if detected and ``|p - g| < threshold`` (metres; 0.2 "following 4DA").
+    """Joint detection outcome of matched pairs, JCSAT ``evaluate.py`` semantics (docs/protocols.md):
+    a joint is detected if ``pred_detected`` says so, by default if it is not exactly (0, 0, 0);
+    correct if detected and ``|p - g| < threshold`` (metres; 0.2 "following 4DA").
     Ground-truth joints outside ``gt_present`` are excluded from both counts."""
     pred, gt = _same_shape(pred, gt)
     present = _mask_or_ones(gt_present, pred.shape[:-1])

@@ -17,7 +17,7 @@ Pipeline (Fig. 3):
 5. **Joint-type conversion** (Sec. 3.2.2, supp. 2.1): ``Linear(25 -> 20) -> Linear(20 -> 15)`` over the joint
    axis, no activation.
 
-Masking (spec ``jcsat_reference.md`` section 5): padded keys are excluded inside the softmax, OTAP gives padded
+Masking (the official code's; ``docs/jcsat.md``): padded keys are excluded inside the softmax, OTAP gives padded
 tokens no mass, and a fully padded sequence aggregates to zeros. A view-pair token of a (frame, joint) is masked
 in the view branch when it carries nothing, i.e. when neither its trajectory sequence (same view pair and joint,
 any frame) nor its structure sequence (same view pair and frame, any joint) holds a candidate: such a token is
@@ -160,7 +160,7 @@ CONFIGS: dict[str, JCSATConfig] = {
         otap_iterations=10, candidate_anchor=True,
     ),
 }
-"""Named configurations (supp. Table 10 and the official code; spec ``jcsat_reference.md`` section 3)."""
+"""Named configurations (supp. Table 10 and the official code; ``docs/jcsat.md``)."""
 
 _VARIANTS = {
     # Table 7: which of (T-OTAP, S-OTAP, V-OTAP) keep the selective OT aggregation.

@@ -4,7 +4,7 @@ A sequence of ``n`` tokens (some of them padding) is pooled into ``p`` output to
 ``K = tokens @ reference.T`` against a learnable reference (``p x d``) defines the entropic transport
 problem with cost ``-K``; its plan ``P`` (``n x p``) weighs the tokens: ``out_j = sum_i P[i, j] tokens_i``.
 
-Conventions (``../shared/specs/jcsat_reference.md`` sections 1 and 5):
+Conventions (the official code's; ``docs/jcsat.md``, "Where the paper is silent"):
 
 - **Marginals.** Token ``i`` sends ``p / n_valid`` (0 if padded), reference ``j`` receives 1, so the plan
   returned here is ``P_OTK = p * P_std``, ``P_std`` being the plan with the usual marginals

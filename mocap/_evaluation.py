@@ -1,5 +1,5 @@
 """Shelf / Campus evaluation: PCP, joint precision / recall, MPJPE and Recall@500mm under the three
-matching conventions of ``shelf_protocol.md`` section 5, each named in every result.
+matching conventions of ``docs/protocols.md``, each named in every result.
 
 Entry points::
 
@@ -27,7 +27,7 @@ Entry points::
 
 Every protocol reports, per actor, the same :class:`ActorScore` fields; only the matching, the PCP
 rule and the PCP denominator change. Precision / recall at 0.2 m and MPJPE follow JCSAT semantics
-(section 7) on each protocol's matched pairs (under ``"voxelpose"`` a prediction nearest to two
+(``docs/protocols.md``) on each protocol's matched pairs (under ``"voxelpose"`` a prediction nearest to two
 people counts for both): a joint counts as detected if it is not (0, 0, 0),
 recall is over all annotated instances (a miss adds zeros), MPJPE is the mean over matched instances
 of the mean error over detected joints, with ``misses`` next to it, and ``mpjpe_jcsat_mm`` is

@@ -17,7 +17,7 @@ name the line of a mistake:
   :data:`geometry.SHELF15` positions in metres, world z up; ``score`` (optional, a float) is the
   method's confidence, kept but not used for scoring. A joint the method did not reconstruct is
   written ``null`` (or ``[0, 0, 0]``); both read back as (0, 0, 0), the 4DA/JCSAT convention the
-  protocols understand (``shelf_protocol.md`` sections 4 and 7).
+  protocols understand (``docs/protocols.md``).
 
 Example file::
 

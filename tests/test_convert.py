@@ -14,7 +14,7 @@ from geometry import (BODY25, shelf15_conversion_matrix, COCO17, H36M17, HEAD_RU
                       to_shelf15_validity)
 from mocap import match_predictions
 
-# shelf_protocol.md section 2: source index of Shelf15 joints 0..11.
+# Source index of Shelf15 joints 0..11 (4DA's MappingToShelf, JCSAT's BODY25 names, VoxelPose's coco2shelf).
 LIMB_SOURCE = {
     "SKEL19": [13, 7, 2, 3, 8, 14, 15, 11, 5, 6, 12, 16],
     "BODY25": [11, 10, 9, 12, 13, 14, 4, 3, 2, 5, 6, 7],
@@ -327,7 +327,7 @@ def shelf_4da_matched(data_root):
 
 
 def test_4da_output_reproduces_the_4da_pcp_counts(shelf_4da_matched):
-    """shelf_protocol.md section 8: strict PCP, 4DA head rule, counts per actor."""
+    """docs/protocols.md, the 4D-association check values: strict PCP, 4DA head rule, counts per actor."""
     m = shelf_4da_matched
     correct = np.asarray(pcp(m["shelf15"], m["gt"], SHELF15, strict=True))
     counts = [(int(correct[m["actor"] == a].sum()), 10 * int(np.sum(m["actor"] == a))) for a in range(4)]
@@ -351,7 +351,7 @@ def test_4da_head_rule_beats_a_naive_mapping(shelf_4da_matched):
 
 
 def test_4da_output_reproduces_jcsat_precision_recall_mpjpe(shelf_4da_matched):
-    """shelf_protocol.md section 8 (JCSAT semantics; every actor is matched here, so nothing is a miss)."""
+    """docs/protocols.md, check values (JCSAT semantics; every actor is matched here, so nothing is a miss)."""
     m = shelf_4da_matched
     detected = np.any(m["shelf15"] != 0, axis=-1)
     per_instance = np.asarray(mpjpe(m["shelf15"], m["gt"], detected))

@@ -1,4 +1,4 @@
-"""Shelf evaluator and prediction files: the 4D-association check values of shelf_protocol.md section 8,
+"""Shelf evaluator and prediction files: the 4D-association check values of docs/protocols.md,
 hand-computed cases where the three matching conventions differ, the JSON-lines format, and the CLI."""
 
 import json
@@ -50,7 +50,7 @@ def score(preds, gt, protocol, actors=(0,)):
     return {a.actor: a for a in result.actors}, result
 
 
-# --- the 4D-association output (shelf_protocol.md section 8) ---------------------------------------
+# --- the 4D-association output (docs/protocols.md) -----------------------------------------------
 
 
 @pytest.fixture(scope="module")

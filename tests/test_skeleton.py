@@ -92,7 +92,7 @@ def test_mirror_bones_join_mirrored_joints(skeleton: Skeleton):
 
 
 def test_shelf15_pcp_parts_follow_the_protocol():
-    # shelf_protocol.md section 4, Shelf15 indices; the order is 4DA's printout order.
+    # docs/protocols.md, "Parts and the PCP rule", Shelf15 indices; the order is 4DA's printout order.
     expected = [(9, 10), (7, 8), (10, 11), (6, 7), (3, 4), (1, 2), (4, 5), (0, 1), (12, 13), (14, 12)]
     assert [tuple(sorted(ix)) for ix in SHELF15.pcp_index] == [tuple(sorted(ix)) for ix in expected]
     assert [name for name, _, _ in SHELF15.pcp_parts][-2:] == ["head", "torso"]
