@@ -23,6 +23,7 @@ def relative_links(markdown: str) -> list[str]:
     return [t.split("#")[0] for t in targets if not re.match(r"[a-z][a-z0-9+.-]*:|#", t)]
 
 
+@pytest.mark.slow
 def test_readme_example_runs_and_prints_what_the_readme_says():
     readme = README.read_text()
     (example,) = _PYTHON_BLOCK.findall(readme)
