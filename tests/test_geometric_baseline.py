@@ -79,11 +79,11 @@ def test_fill_missing_uses_nearest_frame():
 
 
 def test_filled_centres_take_the_nearest_present_frame():
-    present = np.array([[False, True, False, False, True], [False] * 5])
-    centre = np.zeros((2, 5, 3))
-    centre[0, 1], centre[0, 4] = 1.0, 4.0
+    present = np.array([[False, True, False, True, False, False], [False] * 6])
+    centre = np.zeros((2, 6, 3))
+    centre[0, 1], centre[0, 3] = 1.0, 3.0
     filled = association.filled_centres(present, centre)
-    np.testing.assert_array_equal(filled[0, :, 0], [1.0, 1.0, 1.0, 4.0, 4.0])  # frame 2: tie, the earlier
+    np.testing.assert_array_equal(filled[0, :, 0], [1.0, 1.0, 1.0, 3.0, 3.0, 3.0])  # frame 2: a tie, the earlier
     np.testing.assert_array_equal(filled[1], 0.0)
 
 
