@@ -2,7 +2,7 @@
 
     .venv/bin/python -m experiments.bench_jcsat [--json] [--frames N] [--data-root PATH]
 
-Runs the test-time pipeline (Joint Cloud, K-Means persons, tracks: :func:`jcsat.run_geometric_baseline`)
+Runs the test-time pipeline (Joint Cloud, K-Means persons, tracks: :func:`association.run_geometric_baseline`)
 on ``--frames`` Shelf frames (the real OpenPose detections when the data folder exists, else a
 synthetic 4-person Shelf-rig scene), then times the model on every (track, frame) window the main job
 predicts, with :func:`jcsat.predict_shelf15`, after one compiling call,
@@ -29,6 +29,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 from flax import nnx  # noqa: E402
 
+import association  # noqa: E402
 import jcsat  # noqa: E402
 import mocap  # noqa: E402
 from experiments.bench_geometry import best_time  # noqa: E402
@@ -58,8 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=args.frames)
         detections, rig, frame_indices = scene.detections, scene.rig, np.arange(args.frames)
         source = "synthetic 4-person Shelf-rig scene"
-    jcsat.run_geometric_baseline(rig, detections, frame_indices)  # compiles; the second run is timed
-    baseline = jcsat.run_geometric_baseline(rig, detections, frame_indices)
+    association.run_geometric_baseline(rig, detections, frame_indices)  # compiles; the second run is timed
+    baseline = association.run_geometric_baseline(rig, detections, frame_indices)
     rows = baseline.predictions
     position = np.searchsorted(frame_indices, rows.frame)
     frames = len(frame_indices)

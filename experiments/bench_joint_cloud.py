@@ -5,8 +5,9 @@
 Builds the Joint Cloud of ``--frames`` Shelf frames (five views, all 10 view pairs, 25 BODY25 joint
 types; the real OpenPose detections when the data folder exists, else a synthetic 4-person Shelf-rig
 scene) in one jitted call and reports the amortised time per frame (best of ``--repeats``, after the
-compiling call; ``compile_s`` is that call's time minus the best call's), next to :func:`jcsat.numpy_joint_cloud_frame`
-(a loop over pairs, joints and candidates with ``cv2.triangulatePoints``) timed on a few frames.
+compiling call; ``compile_s`` is that call's time minus the best call's), next to
+:func:`association.numpy_reference.numpy_joint_cloud_frame` (a loop over pairs, joints and candidates with
+``cv2.triangulatePoints``) timed on a few frames.
 """
 
 from __future__ import annotations
@@ -26,8 +27,9 @@ from pathlib import Path  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-import jcsat  # noqa: E402
+import association  # noqa: E402
 import mocap  # noqa: E402
+from association.numpy_reference import numpy_joint_cloud_frame  # noqa: E402
 
 _DEFAULT_DATA_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -56,18 +58,18 @@ def main(argv: list[str] | None = None) -> int:
     xy, score = padded.xy.astype(dtype), padded.score.astype(dtype)
 
     start = time.perf_counter()
-    jax.block_until_ready(jcsat.build_joint_cloud(rig, xy, score, padded.mask))
+    jax.block_until_ready(association.build_joint_cloud(rig, xy, score, padded.mask))
     compile_s = time.perf_counter() - start
     times = []
     for _ in range(args.repeats):
         start = time.perf_counter()
-        cloud = jax.block_until_ready(jcsat.build_joint_cloud(rig, xy, score, padded.mask))
+        cloud = jax.block_until_ready(association.build_joint_cloud(rig, xy, score, padded.mask))
         times.append(time.perf_counter() - start)
     jax_ms = 1000 * min(times) / args.frames
 
     start = time.perf_counter()
     for f in range(args.numpy_frames):
-        jcsat.numpy_joint_cloud_frame(rig, padded.xy[f], padded.score[f], padded.mask[f])
+        numpy_joint_cloud_frame(rig, padded.xy[f], padded.score[f], padded.mask[f])
     numpy_ms = 1000 * (time.perf_counter() - start) / args.numpy_frames
 
     result = {

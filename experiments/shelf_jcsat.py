@@ -33,6 +33,7 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
 import jax  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+import association  # noqa: E402
 import jcsat  # noqa: E402
 
 _STAGES = ("data", "geometric", "jcsat", "evaluation", "plot")
@@ -86,20 +87,22 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--window-stride", type=int, default=jcsat.ShelfExperimentConfig.window_stride,
                         help="with --aggregate mean: average the windows ending on every this many frames "
                              "(default: %(default)s)")
-    parser.add_argument("--structural-steps", type=int, default=jcsat.GeometricConfig.structural_steps, metavar="N",
+    parser.add_argument("--structural-steps", type=int, default=association.GeometricConfig.structural_steps,
+                        metavar="N",
                         help="Step Constraint Algorithm steps of the baseline's Structural Triangulation refinement "
                              "with each track's bone lengths; 0 turns it off (default: %(default)s, chosen on "
                              "synthetic validation, experiments.shelf_validate)")
-    parser.add_argument("--max-bone-deviation", type=float, default=jcsat.GeometricConfig.max_bone_deviation,
+    parser.add_argument("--max-bone-deviation", type=float, default=association.GeometricConfig.max_bone_deviation,
                         metavar="R",
                         help="that refinement distrusts the detections of a joint all of whose bones are off the "
                              "track's lengths by more than R times their length; 0 trusts every joint (default: "
                              "%(default)s, chosen on synthetic validation)")
-    parser.add_argument("--outlier-half-window", type=int, default=jcsat.BaselineConfig.outlier_half_window,
+    parser.add_argument("--outlier-half-window", type=int, default=association.BaselineConfig.outlier_half_window,
                         metavar="W",
                         help="the baseline's temporal filter: frames on either side of each joint's median; 0 turns "
                              "it off (default: %(default)s, chosen on synthetic validation)")
-    parser.add_argument("--outlier-distance", type=float, default=jcsat.BaselineConfig.outlier_distance, metavar="M",
+    parser.add_argument("--outlier-distance", type=float, default=association.BaselineConfig.outlier_distance,
+                        metavar="M",
                         help="metres from that median beyond which a joint is replaced by it; 0 replaces every joint, "
                              "a plain median filter (default: %(default)s, chosen on synthetic validation)")
     parser.add_argument("--no-plot", action="store_true", help="skip frame.png")
@@ -113,9 +116,9 @@ def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat.She
         data_root=None if args.data_root is None else str(args.data_root),
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
         baseline=dataclasses.replace(
-            jcsat.BaselineConfig(), seed=args.seed, outlier_half_window=args.outlier_half_window,
+            association.BaselineConfig(), seed=args.seed, outlier_half_window=args.outlier_half_window,
             outlier_distance=args.outlier_distance, geometric=dataclasses.replace(
-                jcsat.GeometricConfig(), structural_steps=args.structural_steps,
+                association.GeometricConfig(), structural_steps=args.structural_steps,
                 max_bone_deviation=args.max_bone_deviation)),
         views=None if args.views is None else tuple(args.views),
         perturb_cameras=args.perturb_cameras, perturb_seed=args.perturb_seed, aggregate=args.aggregate,

@@ -3,13 +3,13 @@
     .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90]
         [--protocol voxelpose|jcsat|4dassoc] [--jcsat] [--json]
 
-Scores a grid of :class:`jcsat.BaselineConfig` variants with :func:`jcsat.synthetic_validation` and prints one
+Scores a grid of :class:`association.BaselineConfig` variants with :func:`jcsat.synthetic_validation` and prints one
 row per setting: PCP (``--protocol``, all synthetic people) per seed and their mean. The grid varies the
 temporal outlier filter's window and distance (distance 0 is a plain median filter), chosen under the
 VoxelPose protocol, the duplicate suppression distance, chosen under the JCSAT protocol (the only one
 where a second prediction of a person costs anything), and the Structural Triangulation refinement's steps,
-prior weight and bone-outlier ratio (:class:`jcsat.GeometricConfig`), chosen under the VoxelPose protocol.
-The defaults of :class:`jcsat.BaselineConfig` are the best rows of these tables, or the simpler of tied rows
+prior weight and bone-outlier ratio (:class:`association.GeometricConfig`), chosen under the VoxelPose protocol.
+The defaults of :class:`association.BaselineConfig` are the best rows of these tables, or the simpler of tied rows
 (their docstrings give the figures). About 6 minutes on 2 CPU cores (2026-11-24, without ``--jcsat``).
 ``--jcsat`` adds the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's default
 (``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
@@ -26,30 +26,31 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
 
 import jax  # noqa: E402
 
+import association  # noqa: E402
 import jcsat  # noqa: E402
 import mocap  # noqa: E402
 
 
-def settings() -> dict[str, jcsat.BaselineConfig]:
-    base = dataclasses.replace(jcsat.BaselineConfig(), outlier_half_window=0)
+def settings() -> dict[str, association.BaselineConfig]:
+    base = dataclasses.replace(association.BaselineConfig(), outlier_half_window=0)
     grid = {"no outlier filter": base}
     for half_window in (2, 3, 5):
         for distance in (0.0, 0.05, 0.1, 0.15, 0.25):
             grid[f"outliers +-{half_window} frames, {distance:g} m"] = dataclasses.replace(
                 base, outlier_half_window=half_window, outlier_distance=distance)
     for distance in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5):
-        grid[f"duplicates within {distance:g} m"] = dataclasses.replace(jcsat.BaselineConfig(),
+        grid[f"duplicates within {distance:g} m"] = dataclasses.replace(association.BaselineConfig(),
                                                                         duplicate_distance=distance)
-    geometric = jcsat.GeometricConfig()
+    geometric = association.GeometricConfig()
     structural = [(0, geometric.structural_prior_weight)]
     structural += [(steps, 0.01) for steps in (3, 6, 9, 12)] + [(9, weight) for weight in (0.003, 0.05, 0.3)]
     for steps, weight in structural:
         name = f"structural {steps} steps, prior {weight:g}" if steps else "no structural refinement"
-        grid[name] = dataclasses.replace(jcsat.BaselineConfig(), geometric=dataclasses.replace(
+        grid[name] = dataclasses.replace(association.BaselineConfig(), geometric=dataclasses.replace(
             geometric, structural_steps=steps, structural_prior_weight=weight))
     for deviation in (0.0, 0.25, 0.5, 1.0):
         name = f"bone outliers beyond {deviation:g}" if deviation else "no bone outliers"
-        grid[name] = dataclasses.replace(jcsat.BaselineConfig(), geometric=dataclasses.replace(
+        grid[name] = dataclasses.replace(association.BaselineConfig(), geometric=dataclasses.replace(
             geometric, max_bone_deviation=deviation))
     return grid
 

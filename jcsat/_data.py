@@ -1,8 +1,8 @@
 """Training windows for the JCSAT model from synthetic Shelf-rig scenes (paper Sec. 4.1.3, reference sections 3-5).
 
 A scene (:func:`mocap.synthesize_scene`: the shipped Shelf calibration, CMU clips, the realistic
-detector) goes through exactly the test-time path, :func:`~jcsat.track_people`: detections -> Joint Cloud ->
-per-frame K-Means persons -> tracks -> :func:`~jcsat.person_joint_cloud`. Ground truth never enters that path; it
+detector) goes through exactly the test-time path, :func:`~association.track_people`: detections -> Joint Cloud ->
+per-frame K-Means persons -> tracks -> :func:`~association.person_joint_cloud`. Ground truth never enters that path; it
 is used only afterwards, to label each (track, frame) with the ground-truth person whose BODY25 mid-hip
 lies within ``match_radius`` of the track's centre (the JCSAT protocol's 0.5 m).
 
@@ -35,11 +35,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 import geometry
 import mocap
+from association import ClusterConfig, JointCloudConfig, track_people
 from geometry import BODY25
-
-from ._clustering import ClusterConfig
-from ._joint_cloud import JointCloudConfig
-from ._pipeline import track_people
 
 __all__ = [
     "TRAIN_CLIPS",

@@ -28,11 +28,10 @@ import numpy as np
 import mocap
 
 import geometry
+from association import BaselineConfig, BaselineResult, run_geometric_baseline
 
 from ._inference import AGGREGATES, predict_shelf15
-from ._model import JCSAT
-from ._pipeline import BaselineConfig, BaselineResult, run_geometric_baseline
-from ._train import load_model
+from ._model import JCSAT, load_model
 
 __all__ = ["ShelfExperimentConfig", "ShelfExperimentResult", "run_shelf_experiment", "METHODS", "SHIPPED_MODEL",
            "synthetic_validation"]

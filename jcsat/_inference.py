@@ -1,7 +1,7 @@
 """JCSAT inference on tracked people: windows of N frames per output frame (paper Sect. 4.1.3).
 
 For track k and frame t the model sees the window of frames ``t - N + 1 .. t`` (clamped at the first
-frame, :func:`~jcsat.window_frames`), centred on the track's cluster centre in the window's first
+frame, :func:`~association.window_frames`), centred on the track's cluster centre in the window's first
 frame, as in training (:func:`~jcsat.window_batch`, without the rotation). ``aggregate="last"``
 (causal, online): the prediction of the window's last frame, plus that centre, is the pose at t.
 ``aggregate="mean"`` (offline): the pose at t is the mean of frame t's predictions by the windows of the
@@ -20,22 +20,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
 
-from ._clustering import PersonJointCloud, window_frames
-from ._geometric import fill_missing
+from association import PersonJointCloud, filled_centres, window_frames
+
 from ._model import JCSAT
 
-__all__ = ["AGGREGATES", "filled_centres", "predict_shelf15"]
+__all__ = ["AGGREGATES", "predict_shelf15"]
 
 AGGREGATES: tuple[str, ...] = ("last", "mean")
 """How :func:`predict_shelf15` turns window predictions into one pose per frame (see the module docstring)."""
-
-
-def filled_centres(present: Bool[np.ndarray, "T F"], centre: Float[np.ndarray, "T F 3"]) -> Float[np.ndarray, "T F 3"]:
-    """Each track's cluster centre in every frame, taken from its nearest frame (earlier on ties) where it is present."""
-    every_frame = np.ones(present.shape[1], bool)
-    return np.stack([fill_missing(c[:, None, :], p[:, None], every_frame)[0][:, 0] for p, c in zip(present, centre)])
 
 
 @partial(jax.jit, static_argnames=("graphdef", "last_frame_only"))

@@ -2,8 +2,8 @@
 
 Input: one person's Joint Cloud window, ``points`` ``(N, P, M, J, 3)`` (frames, view pairs, candidate slots,
 BODY25 joint types; metres, centred on the person, 0 where padded) with ``mask`` ``(N, P, M, J)``, as built by
-:func:`jcsat.person_joint_cloud` and :func:`jcsat.window_frames`. Output: Shelf15 joints ``(N, 15, 3)`` in the same
-centred frame (:data:`geometry.SHELF15` order: Shelf14 plus the mid-hip).
+:func:`association.person_joint_cloud` and :func:`association.window_frames`. Output: Shelf15 joints
+``(N, 15, 3)`` in the same centred frame (:data:`geometry.SHELF15` order: Shelf14 plus the mid-hip).
 
 Pipeline (Fig. 3):
 
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 from typing import Literal
 
 import jax
@@ -47,7 +48,7 @@ from geometry import BODY25, SHELF15
 
 from ._otap import OTAP
 
-__all__ = ["CONFIGS", "JCSAT", "JCSATConfig", "aggregation_variant", "parameter_count"]
+__all__ = ["CONFIGS", "JCSAT", "JCSATConfig", "aggregation_variant", "load_model", "parameter_count"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -475,3 +476,8 @@ class JCSAT(nnx.Module):
         dropout are drawn from it. ``last_frame_only``: see :meth:`body25`.
         """
         return self.convert(self.body25(points, mask, key=key, last_frame_only=last_frame_only))
+
+
+def load_model(path: str | Path) -> JCSAT:
+    """The model folder written by :func:`~jcsat.train` to ``<workdir>/model``, with the trained parameters."""
+    return training.load_model_state(path, lambda fields: JCSAT(JCSATConfig(**fields), rngs=nnx.Rngs(0)))

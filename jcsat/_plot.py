@@ -13,9 +13,8 @@ from pathlib import Path
 import numpy as np
 
 import geometry
+from association import BaselineResult
 from geometry import SHELF15, Camera
-
-from ._pipeline import BaselineResult
 
 __all__ = ["plot_frame", "MATCH_DISTANCE_M", "matched_tracks"]
 

@@ -10,7 +10,7 @@ continues exactly as an uninterrupted one.
 Outputs in ``workdir``: ``config.json``; ``log.jsonl`` (one JSON object per logged step: losses, lr,
 seconds per step, and at validation steps MPJPE in mm and PCP in % on held-out synthetic windows);
 ``checkpoints/<step>/`` (orbax, atomic, the last two kept); ``model/`` (``config.json`` and
-``state.npz``, the final parameters, read back by :func:`load_model`).
+``state.npz``, the final parameters, read back by :func:`~jcsat.load_model`).
 
 Data parallelism: a one-axis mesh ``"data"`` over the local devices shards every batch along its
 first axis and replicates parameters and optimiser state; ``batch_size`` must be a multiple of the
@@ -40,11 +40,11 @@ from geometry import SHELF15
 
 from ._data import VALIDATION_CLIPS, Batch, DataConfig, WindowDataset, build_dataset, sample_batch, window_batch
 from ._losses import LossConfig, jcsat_loss
-from ._model import CONFIGS, JCSAT, JCSATConfig
+from ._model import CONFIGS, JCSAT, JCSATConfig, load_model
 
 __all__ = [
     "TrainConfig", "TrainState", "init_state", "learning_rate_schedule", "make_optimizer", "train_step", "train",
-    "load_model", "TRAIN_CONFIGS",
+    "TRAIN_CONFIGS",
 ]
 
 
@@ -81,7 +81,7 @@ class TrainConfig:
     cache_dir: str | None = None
     """Where built datasets are cached; None: ``<workdir>/data_cache``."""
     init_model: str | None = None
-    """A model folder (:func:`load_model`) whose parameters start the run (fine-tuning); its config must be
+    """A model folder (:func:`~jcsat.load_model`) whose parameters start the run (fine-tuning); its config must be
     ``model``'s. None: a fresh initialisation from ``seed``."""
 
     def __post_init__(self) -> None:
@@ -221,11 +221,6 @@ def _validate(eval_step, state, data: WindowDataset, config: TrainConfig, batch_
     return {"val_mpjpe_mm": 1000.0 * sums["error_sum"] / frames,
             "val_pcp": 100.0 * sums["correct_sum"] / (frames * len(SHELF15.pcp_parts)),
             "val_frames": int(sums["frames"])}
-
-
-def load_model(path: str | Path) -> JCSAT:
-    """The model written by :func:`train` to ``<workdir>/model``, with the trained parameters."""
-    return training.load_model_state(path, lambda fields: JCSAT(JCSATConfig(**fields), rngs=nnx.Rngs(0)))
 
 
 def train(

@@ -9,12 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import association
 import geometry
 import jcsat
 import mocap
 
 FRAMES = 8
-CONFIG = jcsat.BaselineConfig(max_candidates=6)  # one padding for every scene here: one compilation
+CONFIG = association.BaselineConfig(max_candidates=6)  # one padding for every scene here: one compilation
 
 
 def _scores(result, body25_gt, people):
@@ -26,7 +27,7 @@ def _scores(result, body25_gt, people):
 def test_perfect_detector_recovers_ground_truth():
     scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
                                    detector=mocap.PERFECT_DETECTOR)
-    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
+    result = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
     score = _scores(result, scene.body25, 2)
     # Not exactly 100: a joint seen by two views only has one true candidate, and a cross-person
     # candidate passing the ray filter can tie with it (one part of 160 here).
@@ -37,7 +38,7 @@ def test_perfect_detector_recovers_ground_truth():
     unfiltered = dataclasses.replace(CONFIG, outlier_half_window=0)
     exact = dataclasses.replace(unfiltered, geometric=dataclasses.replace(CONFIG.geometric, structural_steps=0))
     for config, median_error, within_1cm in ((exact, 1e-6, 0.9), (unfiltered, 3e-3, 0.85)):
-        result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), config)
+        result = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), config)
         errors = np.linalg.norm(result.body25[:, :, None] - scene.body25[None], axis=-1)  # (T, F, people, 25)
         nearest = errors.mean(-1).argmin(-1)
         own = np.take_along_axis(errors, nearest[..., None, None], axis=2)[:, :, 0][result.present]
@@ -46,7 +47,7 @@ def test_perfect_detector_recovers_ground_truth():
 
 def test_realistic_detector_sensible():
     scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
-    result = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
+    result = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
     score = _scores(result, scene.body25, 2)
     assert score.average["pcp"] > 70.0
 
@@ -55,11 +56,11 @@ def test_consensus_rejects_outlier_candidate():
     rig = mocap.shelf_cameras()
     truth = np.array([0.3, 0.2, 1.1])
     pixels = np.stack([np.asarray(geometry.project(rig.select(v), truth)) for v in range(5)])[:, None]  # (V, 1, 2)
-    pairs = jcsat.view_pairs(5)
+    pairs = association.view_pairs(5)
     points = np.tile(truth, (10, 1))
     points[0] = truth + [0.5, 0.0, 0.0]  # a spurious candidate (its pair's detections are the true ones here)
     args = (points, np.ones(10), pairs, np.zeros((10, 2), np.int32), pixels, np.ones((5, 1)))
-    joint = jcsat.consensus_joint(*map(jnp.asarray, args), geometry.projection_matrix(rig), 0.1)
+    joint = association.consensus_joint(*map(jnp.asarray, args), geometry.projection_matrix(rig), 0.1)
     assert bool(joint.supported) and int(joint.num_views) == 5
     np.testing.assert_allclose(joint.point, truth, atol=1e-6)
     # The detections it was triangulated from are reported, for the structural refinement.
@@ -70,11 +71,20 @@ def test_consensus_rejects_outlier_candidate():
 def test_fill_missing_uses_nearest_frame():
     joints = np.arange(4 * 2 * 3, dtype=float).reshape(4, 2, 3)
     valid = np.array([[True, False], [False, False], [False, False], [True, True]])
-    filled, ok = jcsat.fill_missing(joints, valid, np.array([True, True, True, True]))
+    filled, ok = association.fill_missing(joints, valid, np.array([True, True, True, True]))
     np.testing.assert_array_equal(filled[1, 0], joints[0, 0])
     np.testing.assert_array_equal(filled[2, 0], joints[3, 0])
     np.testing.assert_array_equal(filled[0, 1], joints[3, 1])
     assert ok.all()
+
+
+def test_filled_centres_take_the_nearest_present_frame():
+    present = np.array([[False, True, False, True, False, False], [False] * 6])
+    centre = np.zeros((2, 6, 3))
+    centre[0, 1], centre[0, 3] = 1.0, 3.0
+    filled = association.filled_centres(present, centre)
+    np.testing.assert_array_equal(filled[0, :, 0], [1.0, 1.0, 1.0, 3.0, 3.0, 3.0])  # frame 2: a tie, the earlier
+    np.testing.assert_array_equal(filled[1], 0.0)
 
 
 def test_temporal_outlier_rejection():
@@ -87,19 +97,19 @@ def test_temporal_outlier_rejection():
     corrupted[5, 0] += [0.5, 0.0, 0.0]  # another person's hand won the medoid in one frame
     corrupted[18, 0] += [0.5, 0.0, 0.0]
     corrupted[16, 0] = 99.0  # invalid frames are neither used nor changed
-    out = jcsat.reject_temporal_outliers(corrupted, valid, half_window=3, max_deviation=0.15)
+    out = association.reject_temporal_outliers(corrupted, valid, half_window=3, max_deviation=0.15)
     assert np.linalg.norm(out[5, 0] - joints[5, 0]) < 0.02
     np.testing.assert_array_equal(out[18], corrupted[18])
     np.testing.assert_array_equal(out[16], corrupted[16])
     untouched = np.setdiff1d(frames, [5])
     np.testing.assert_array_equal(out[untouched], corrupted[untouched])
-    np.testing.assert_array_equal(jcsat.reject_temporal_outliers(corrupted, valid, 0, 0.15), corrupted)
-    median = jcsat.reject_temporal_outliers(joints, valid, 1, 0.0)  # distance 0: a plain median filter
+    np.testing.assert_array_equal(association.reject_temporal_outliers(corrupted, valid, 0, 0.15), corrupted)
+    median = association.reject_temporal_outliers(joints, valid, 1, 0.0)  # distance 0: a plain median filter
     np.testing.assert_allclose(median[1], np.median(joints[0:3], axis=0))
     fast = 0.3 * frames[:, None, None] * np.ones((1, 1, 3))  # steady motion, 0.52 m per frame: never an outlier
-    np.testing.assert_array_equal(jcsat.reject_temporal_outliers(fast, valid | True, 3, 0.15), fast)
+    np.testing.assert_array_equal(association.reject_temporal_outliers(fast, valid | True, 3, 0.15), fast)
     with pytest.raises(ValueError, match="half_window"):
-        jcsat.reject_temporal_outliers(joints, valid, -1, 0.1)
+        association.reject_temporal_outliers(joints, valid, -1, 0.1)
 
 
 def test_experiment_end_to_end(tmp_path):
@@ -129,15 +139,15 @@ def test_reprojection_check_adds_views_and_rejects_far_detections():
     # One candidate from views (0, 1) only: without the check two views are re-triangulated.
     args = (np.array([truth]), np.ones(1), np.array([[0, 1]]), np.zeros((1, 2), np.int32), pixels, score)
     args = tuple(map(jnp.asarray, args)) + (projections, 0.1)
-    joint = jcsat.consensus_joint(*args)
+    joint = association.consensus_joint(*args)
     assert int(joint.num_views) == 2 and np.asarray(joint.weight).tolist() == [1, 1, 0, 0, 0]
-    joint = jcsat.consensus_joint(*args, inlier_pixels=20.0)
+    joint = association.consensus_joint(*args, inlier_pixels=20.0)
     assert int(joint.num_views) == 4  # views 0-3 hold an inlier; view 4's only detection is 200 px off
     np.testing.assert_allclose(joint.point, truth, atol=1e-6)
     assert np.asarray(joint.weight).tolist() == [1, 1, 1, 1, 0]
     np.testing.assert_allclose(joint.pixels[:4], exact[:4])
     score[:, 0] = 0.1  # below min_score: never an inlier
-    joint = jcsat.consensus_joint(*args[:5], jnp.asarray(score), projections, 0.1, inlier_pixels=20.0)
+    joint = association.consensus_joint(*args[:5], jnp.asarray(score), projections, 0.1, inlier_pixels=20.0)
     assert int(joint.num_views) == 2
 
 
@@ -150,13 +160,13 @@ def test_short_tracks_dropped_and_gaps_bridged():
         tuple(p[np.ix_(ia != 1, ib != 1)] for p, (ia, ib) in zip(
             d.pafs, [(d.person_ids[a], d.person_ids[b]) for a, b in mocap.BODY25_PAF_PAIRS])),
         tuple(ids[ids != 1] for ids in d.person_ids)) for d in views] for f, views in enumerate(scene.detections)]
-    bridged = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+    bridged = association.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
                                            dataclasses.replace(CONFIG, max_gap_frames=2, min_track_frames=1))
-    strict = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+    strict = association.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
                                           dataclasses.replace(CONFIG, max_gap_frames=1, min_track_frames=1))
     assert bridged.predictions.num_predictions == 2 * FRAMES
     assert strict.predictions.num_predictions == 2 * FRAMES - 2
-    pruned = jcsat.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
+    pruned = association.run_geometric_baseline(scene.rig, detections, np.arange(FRAMES),
                                           dataclasses.replace(CONFIG, max_gap_frames=0, min_track_frames=FRAMES))
     # Only the never-interrupted person is output.
     assert pruned.predictions.num_predictions == FRAMES and len(np.unique(pruned.predictions.person)) == 1
@@ -166,7 +176,7 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
     """Rows are scored by the Joint Cloud candidates of their track's cluster and ranked by it within each
     frame; a suppression distance larger than the scene keeps only each frame's best-supported person."""
     scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
-    ranked = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
+    ranked = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
                                           dataclasses.replace(CONFIG, duplicate_distance=0.0))
     rows = ranked.predictions
     support = np.asarray(ranked.person_cloud.mask).sum(axis=(2, 3, 4))
@@ -175,7 +185,7 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
     for frame in range(FRAMES):
         assert np.all(np.diff(rows.score[rows.frame == frame]) <= 0)
     assert len(np.unique(rows.frame)) == FRAMES and rows.num_predictions > FRAMES
-    single = jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
+    single = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
                                           dataclasses.replace(CONFIG, duplicate_distance=100.0)).predictions
     assert single.frame.tolist() == list(range(FRAMES))
     first = [int(np.flatnonzero(rows.frame == frame)[0]) for frame in range(FRAMES)]
@@ -186,13 +196,13 @@ def test_predictions_ranked_by_support_and_duplicates_suppressed():
                                         ("outlier_distance", float("nan"))])
 def test_bad_outlier_filter_is_named_before_anything_runs(field, bad):
     with pytest.raises(ValueError, match=field):
-        jcsat.BaselineConfig(**{field: bad})
+        association.BaselineConfig(**{field: bad})
 
 
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
 def test_bad_duplicate_distance_is_named_before_anything_runs(bad):
     with pytest.raises(ValueError, match="duplicate_distance"):
-        jcsat.BaselineConfig(duplicate_distance=bad)
+        association.BaselineConfig(duplicate_distance=bad)
 
 
 def test_track_bone_lengths_median_of_triangulated_frames_and_mirror_average():
@@ -209,14 +219,14 @@ def test_track_bone_lengths_median_of_triangulated_frames_and_mirror_average():
     views[:, l_wrist] = 0  # the left forearm is never triangulated: its mirror's length is used
     views[7, r_wrist] = 1
     joints[7, r_wrist] += [9.0, 0.0, 0.0]  # fewer than two views: not counted at all
-    lengths = jcsat.track_bone_lengths(joints, views, skeleton)
+    lengths = association.track_bone_lengths(joints, views, skeleton)
     bone_of = {c: k for k, (_, c) in enumerate(skeleton.bones)}
     np.testing.assert_allclose(lengths[bone_of[r_wrist]], 0.3)
     np.testing.assert_allclose(lengths[bone_of[l_wrist]], 0.3)
     others = [k for k in range(len(lengths)) if k not in (bone_of[r_wrist], bone_of[l_wrist])]
     np.testing.assert_allclose(lengths[others], 0.1)
     views[:, r_wrist] = 0
-    assert np.isnan(jcsat.track_bone_lengths(joints, views, skeleton)[bone_of[r_wrist]])
+    assert np.isnan(association.track_bone_lengths(joints, views, skeleton)[bone_of[r_wrist]])
 
 
 def _noisy_track(seed, frames=12):
@@ -241,10 +251,10 @@ def test_structural_refinement_meets_track_bone_lengths_and_reduces_error():
     joints = [geometry.BODY25.index(name) for name in skeleton.joints]
     valid = np.ones(raw.shape[:2], bool)
     num_views = np.full(raw.shape[:2], projections.shape[0])
-    refined, done = jcsat.structural_refinement(projections, raw[None], valid[None], num_views[None],
+    refined, done = association.structural_refinement(projections, raw[None], valid[None], num_views[None],
                                                 pixels[None], weight[None], steps=9, prior_weight=0.01)
     assert done.all()
-    target = jcsat.track_bone_lengths(raw[:, joints], num_views[:, joints], skeleton)
+    target = association.track_bone_lengths(raw[:, joints], num_views[:, joints], skeleton)
     parent, child = np.asarray(skeleton.bones).T
     solved = refined[0][:, joints]
     np.testing.assert_allclose(np.linalg.norm(solved[:, child] - solved[:, parent], axis=-1),
@@ -269,7 +279,7 @@ def test_structural_refinement_keeps_unseen_joints_and_tracks_without_lengths():
     no_lengths = num_views.copy()
     no_lengths[:, geometry.BODY25.index("l_ankle")] = 0  # never triangulated, nor its mirror:
     no_lengths[:, geometry.BODY25.index("r_ankle")] = 0  # the second track has no shin length
-    refined, done = jcsat.structural_refinement(
+    refined, done = association.structural_refinement(
         projections, body, np.stack([valid, valid]), np.stack([num_views, no_lengths]),
         np.stack([pixels, pixels]), np.stack([weight, weight]), steps=3, prior_weight=0.01)
     assert done[0].all() and not done[1].any()
@@ -277,7 +287,7 @@ def test_structural_refinement_keeps_unseen_joints_and_tracks_without_lengths():
     np.testing.assert_array_equal(refined[0, 5, wrist], raw[5, wrist])
     assert np.all(np.isfinite(refined)) and np.linalg.norm(refined[0, 6, wrist] - raw[6, wrist]) < 0.1
     assert frames == refined.shape[1]
-    unchecked = inspect.unwrap(jcsat.structural_refinement)  # its own check, not the tests' jaxtyping hook
+    unchecked = inspect.unwrap(association.structural_refinement)  # its own check, not the tests' jaxtyping hook
     with pytest.raises(ValueError, match="pixels must have shape"):
         unchecked(projections, body, np.stack([valid, valid]), np.stack([num_views, num_views]),
                   np.stack([pixels, pixels])[:, :, :, :2], np.stack([weight, weight]), 3, 0.01)
@@ -297,13 +307,13 @@ def test_bone_outliers_reject_the_wrong_joint_not_its_neighbours():
     valid = np.ones(joints.shape[:2], bool)
     expected = np.zeros(joints.shape[:2], bool)
     expected[1, r_wrist] = expected[2, r_elbow] = expected[3, nose] = True
-    np.testing.assert_array_equal(jcsat.bone_outliers(joints, valid, lengths, skeleton, 0.5), expected)
-    assert not jcsat.bone_outliers(joints, valid, lengths, skeleton, 3.0).any()  # 0.32 m is within 4 x 0.1 m
+    np.testing.assert_array_equal(association.bone_outliers(joints, valid, lengths, skeleton, 0.5), expected)
+    assert not association.bone_outliers(joints, valid, lengths, skeleton, 3.0).any()  # 0.32 m is within 4 x 0.1 m
     unknown = lengths.copy()
     unknown[[k for k, (_, c) in enumerate(skeleton.bones) if c == r_wrist]] = np.nan
-    assert not jcsat.bone_outliers(joints, valid, unknown, skeleton, 0.5)[1, r_wrist]
+    assert not association.bone_outliers(joints, valid, unknown, skeleton, 0.5)[1, r_wrist]
     valid[1, r_elbow] = False  # the wrist has no bone to a valid joint left: nothing to judge it by
-    assert not jcsat.bone_outliers(joints, valid, lengths, skeleton, 0.5)[1].any()
+    assert not association.bone_outliers(joints, valid, lengths, skeleton, 0.5)[1].any()
 
 
 def test_structural_refinement_distrusts_bone_outliers():
@@ -317,8 +327,8 @@ def test_structural_refinement_distrusts_bone_outliers():
     raw[:, wrist] = np.asarray(geometry.triangulate(projections, pixels[:, wrist], weight[:, wrist]).point)
     args = (projections, raw[None], np.ones((1,) + raw.shape[:2], bool), np.full((1,) + raw.shape[:2], 5),
             pixels[None], weight[None])
-    trusting, _ = jcsat.structural_refinement(*args, steps=9, prior_weight=0.01)
-    distrusting, done = jcsat.structural_refinement(*args, steps=9, prior_weight=0.01, max_bone_deviation=0.5)
+    trusting, _ = association.structural_refinement(*args, steps=9, prior_weight=0.01)
+    distrusting, done = association.structural_refinement(*args, steps=9, prior_weight=0.01, max_bone_deviation=0.5)
     assert done.all()
     error = lambda pose: np.linalg.norm(pose[0, wrong, wrist] - truth[wrong, wrist], axis=-1)  # noqa: E731
     assert np.all(error(trusting) > 0.3) and np.all(error(distrusting) < 0.1)
@@ -331,4 +341,4 @@ def test_structural_refinement_distrusts_bone_outliers():
                                         ("max_bone_deviation", float("inf"))])
 def test_bad_structural_settings_are_named(field, bad):
     with pytest.raises(ValueError, match=field):
-        jcsat.GeometricConfig(**{field: bad})
+        association.GeometricConfig(**{field: bad})

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from flax import nnx
 
+import association
 import jcsat
 import mocap
 
@@ -21,16 +22,8 @@ TINY = jcsat.JCSATConfig(
 def baseline():
     # synthetic_validation's scene of seed 3 with its default BaselineConfig: they share one compilation.
     scene = mocap.synthesize_scene(jax.random.key(3), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
-    return jcsat.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), jcsat.BaselineConfig())
-
-
-def test_filled_centres_take_the_nearest_present_frame():
-    present = np.array([[False, True, False, False, True], [False] * 5])
-    centre = np.zeros((2, 5, 3))
-    centre[0, 1], centre[0, 4] = 1.0, 4.0
-    filled = jcsat.filled_centres(present, centre)
-    np.testing.assert_array_equal(filled[0, :, 0], [1.0, 1.0, 1.0, 4.0, 4.0])  # frame 2: tie, the earlier
-    np.testing.assert_array_equal(filled[1], 0.0)
+    config = association.BaselineConfig()
+    return association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), config)
 
 
 def test_predictions_are_the_models_last_frame_on_centred_causal_windows(baseline):
@@ -44,7 +37,7 @@ def test_predictions_are_the_models_last_frame_on_centred_causal_windows(baselin
     r = int(np.argmax(position))
     track, t = int(rows.person[r]), int(position[r])
     frames = np.maximum(np.arange(t - 9, t + 1), 0)
-    centre = jcsat.filled_centres(tracks.present, tracks.centre)[track, frames[0]]
+    centre = association.filled_centres(tracks.present, tracks.centre)[track, frames[0]]
     mask = np.asarray(tracks.mask)[track, frames]
     points = np.where(mask[..., None], np.asarray(tracks.points)[track, frames] - centre, 0.0).astype(np.float32)
     expected = np.asarray(model(points, mask))[-1] + centre
@@ -67,8 +60,8 @@ def test_mean_aggregate_averages_the_grid_windows_that_contain_the_frame(baselin
     track, t = int(rows.person[r]), int(position[r])
     ends = [e for e in range(t, min(t + 10, FRAMES)) if (FRAMES - 1 - e) % stride == 0 and tracks.present[track, e]]
     assert len(ends) > 1
-    window = jcsat.window_frames(FRAMES)
-    centres = jcsat.filled_centres(tracks.present, tracks.centre)
+    window = association.window_frames(FRAMES)
+    centres = association.filled_centres(tracks.present, tracks.centre)
     estimates = []
     for end in ends:
         frames = window[end]
@@ -89,7 +82,7 @@ def test_mean_aggregate_averages_the_grid_windows_that_contain_the_frame(baselin
 @pytest.mark.slow
 def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp_path):
     config = jcsat.ShelfExperimentConfig(quick=True, synthetic_people=2, views=(0, 1, 2, 4), perturb_cameras=1,
-                                         baseline=jcsat.BaselineConfig(max_candidates=6))
+                                         baseline=association.BaselineConfig(max_candidates=6))
     result = jcsat.run_shelf_experiment(config, tmp_path)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert set(metrics["scores"]) == {"jcsat", "geometric"}
@@ -110,7 +103,7 @@ def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp
 
 def test_synthetic_validation_scores_baseline_settings_and_the_model_aggregates():
     model = jcsat.JCSAT(TINY, rngs=nnx.Rngs(0))
-    table = jcsat.synthetic_validation({"default": jcsat.BaselineConfig()}, seeds=(3,), people=2,
+    table = jcsat.synthetic_validation({"default": association.BaselineConfig()}, seeds=(3,), people=2,
                                        frames=FRAMES, model=model)
     assert set(table) == {"default", "jcsat, last", "jcsat, mean", "jcsat, mean, stride 2", "jcsat, mean, stride 3"}
     for row in table.values():

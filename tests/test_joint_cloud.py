@@ -7,9 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import association
 import geometry
-import jcsat
 import mocap
+from association.numpy_reference import numpy_joint_cloud_frame
 
 NUM_JOINTS = 3  # a small frame: 3 joint types keep the NumPy loop reference fast
 
@@ -35,8 +36,8 @@ def frame():
 
 def test_matches_numpy_loop_reference(frame):
     rig, xy, score, mask, _ = frame
-    cloud = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None])
-    reference = jcsat.numpy_joint_cloud_frame(rig, xy, score, mask)
+    cloud = association.build_joint_cloud(rig, xy[None], score[None], mask[None])
+    reference = numpy_joint_cloud_frame(rig, xy, score, mask)
     valid = np.asarray(cloud.valid[0])
     assert valid.sum() == len(reference) > 10
     for item in reference:
@@ -45,7 +46,7 @@ def test_matches_numpy_loop_reference(frame):
         np.testing.assert_allclose(cloud.point[index], item["point"], atol=1e-5)  # cv2 rounds to ~1 um
         np.testing.assert_allclose(cloud.ray_distance[index], item["ray_distance"], atol=1e-9)
         np.testing.assert_allclose(cloud.reprojection_error[index], item["reprojection_error"], atol=1e-4)
-        pair = jcsat.view_pairs(5)[item["pair"]]
+        pair = association.view_pairs(5)[item["pair"]]
         np.testing.assert_allclose(cloud.score[index], [score[pair[0], item["joint"], item["a"]],
                                                         score[pair[1], item["joint"], item["b"]]])
     assert not np.asarray(cloud.point[0])[~valid].any()
@@ -53,8 +54,8 @@ def test_matches_numpy_loop_reference(frame):
 
 def test_filters(frame):
     rig, xy, score, mask, people = frame
-    cloud = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None])
-    pairs = jcsat.view_pairs(5)
+    cloud = association.build_joint_cloud(rig, xy[None], score[None], mask[None])
+    pairs = association.view_pairs(5)
     valid = np.asarray(cloud.valid[0])
     assert not valid[pairs[:, 0] == 1, 0, 0].any() and not valid[pairs[:, 1] == 1, 0, :, 0].any()  # low score
     assert not valid[pairs[:, 0] == 2, 1, 1].any() and not valid[pairs[:, 1] == 2, 1, :, 1].any()  # padded
@@ -66,8 +67,10 @@ def test_filters(frame):
     error = np.linalg.norm(points - np.swapaxes(people, 0, 1)[None], axis=-1)[same]
     assert error.max() < 0.05
     assert (np.asarray(cloud.ray_distance[0])[valid] < 0.1).all()
-    loose = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None], jcsat.JointCloudConfig(max_ray_distance=5.0))
-    strict = jcsat.build_joint_cloud(rig, xy[None], score[None], mask[None], jcsat.JointCloudConfig(min_score=0.5))
+    loose_config = association.JointCloudConfig(max_ray_distance=5.0)
+    loose = association.build_joint_cloud(rig, xy[None], score[None], mask[None], loose_config)
+    strict_config = association.JointCloudConfig(min_score=0.5)
+    strict = association.build_joint_cloud(rig, xy[None], score[None], mask[None], strict_config)
     assert np.asarray(loose.valid).sum() > valid.sum() > np.asarray(strict.valid).sum()
 
 
@@ -79,16 +82,17 @@ def test_pruned_frames_equal_the_dense_frame_kernel(frame):
     xy_f = np.stack([xy, xy + rng.normal(0, 2.0, xy.shape), xy])
     score_f = np.stack([score, rng.uniform(0.0, 0.6, score.shape), score])
     mask_f = np.stack([mask, mask, np.zeros_like(mask)])
-    cloud = jcsat.build_joint_cloud(rig, xy_f, score_f, mask_f)
-    dense = jax.vmap(jcsat.joint_cloud_frame, in_axes=(None, 0, 0, 0))(rig, jnp.asarray(xy_f), jnp.asarray(score_f), jnp.asarray(mask_f))
+    cloud = association.build_joint_cloud(rig, xy_f, score_f, mask_f)
+    dense = jax.vmap(association.joint_cloud_frame, in_axes=(None, 0, 0, 0))(
+        rig, jnp.asarray(xy_f), jnp.asarray(score_f), jnp.asarray(mask_f))
     assert 10 < int(np.asarray(cloud.valid).sum()) and not np.asarray(cloud.valid[2]).any()
-    for name, a, b in zip(jcsat.JointCloud._fields, cloud, dense):
+    for name, a, b in zip(association.JointCloud._fields, cloud, dense):
         assert a.shape == b.shape and a.dtype == b.dtype, name
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12, err_msg=name)
 
 
 def test_entry_buckets_bound_padding_and_compilations():
-    from jcsat._joint_cloud import _bucket
+    from association._joint_cloud import _bucket
 
     counts = np.arange(1, 200_000, 37)
     buckets = np.array([_bucket(int(c)) for c in counts])
@@ -99,8 +103,8 @@ def test_entry_buckets_bound_padding_and_compilations():
 def test_jit_equals_eager(frame):
     rig, xy, score, mask, _ = frame
     args = (rig, jnp.asarray(xy), jnp.asarray(score), jnp.asarray(mask))
-    eager = jcsat.joint_cloud_frame(*args)
-    jitted = jax.jit(jcsat.joint_cloud_frame)(*args)
+    eager = association.joint_cloud_frame(*args)
+    jitted = jax.jit(association.joint_cloud_frame)(*args)
     for a, b in zip(eager, jitted):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-9)
 
@@ -108,14 +112,14 @@ def test_jit_equals_eager(frame):
 def test_bad_input_raises(frame):
     rig, xy, score, mask, _ = frame
     with pytest.raises((ValueError, TypeError), match="xy"):  # jaxtyping's TypeCheckError is a TypeError
-        jcsat.build_joint_cloud(rig, xy, score, mask)
+        association.build_joint_cloud(rig, xy, score, mask)
     bad = xy.copy()
     bad[0, 0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
-        jcsat.build_joint_cloud(rig, bad[None], score[None], mask[None])
+        association.build_joint_cloud(rig, bad[None], score[None], mask[None])
     with pytest.raises(ValueError, match="max_ray_distance"):
-        jcsat.JointCloudConfig(max_ray_distance=0.0)
-    assert len(jcsat.view_pairs(5)) == 10 and jcsat.view_pairs(3).tolist() == [[0, 1], [0, 2], [1, 2]]
+        association.JointCloudConfig(max_ray_distance=0.0)
+    assert len(association.view_pairs(5)) == 10 and association.view_pairs(3).tolist() == [[0, 1], [0, 2], [1, 2]]
 
 
 def _blobs(seed: int):
@@ -129,8 +133,8 @@ def _blobs(seed: int):
 def test_kmeans_finds_separated_clusters_deterministically():
     centres, points, weight = _blobs(1)
     key = jax.random.key(3)
-    result = jcsat.kmeans(points, weight, 3, key, num_slots=5)
-    again = jcsat.kmeans(points, weight, 3, key, num_slots=5)
+    result = association.kmeans(points, weight, 3, key, num_slots=5)
+    again = association.kmeans(points, weight, 3, key, num_slots=5)
     np.testing.assert_array_equal(np.asarray(result.centres), np.asarray(again.centres))
     assert np.asarray(result.active).tolist() == [True, True, True, False, False]
     found = np.asarray(result.centres)[:3]
@@ -141,8 +145,8 @@ def test_kmeans_finds_separated_clusters_deterministically():
 def test_trimmed_kmeans_ignores_outlier():
     centres, points, weight = _blobs(2)
     points[-1], weight[-1] = [8.0, 8.0, 1.0], 1.0  # one far spurious candidate
-    plain = jcsat.kmeans(points, weight, 3, jax.random.key(0), num_slots=3)
-    trimmed = jcsat.kmeans(points, weight, 3, jax.random.key(0), num_slots=3, trim=0.3)
+    plain = association.kmeans(points, weight, 3, jax.random.key(0), num_slots=3)
+    trimmed = association.kmeans(points, weight, 3, jax.random.key(0), num_slots=3, trim=0.3)
     worst = lambda r: np.linalg.norm(np.asarray(r.centres)[:, None] - centres[None], axis=-1).min(axis=0).max()  # noqa: E731
     assert worst(trimmed) < 0.05 < worst(plain)
 
@@ -155,14 +159,14 @@ def test_tracking_survives_swapped_detection_order():
     swapped[10:] = paths[10:, ::-1]  # the detector lists the people in the other order from frame 10
     active = np.ones((20, 2), bool)
     slot_of_person0 = np.r_[np.zeros(10, int), np.ones(10, int)]
-    track = jcsat.track_centres(swapped, active, gate=0.5)
+    track = association.track_centres(swapped, active, gate=0.5)
     assert set(track[np.arange(20), slot_of_person0]) == {0}
     assert set(track[np.arange(20), 1 - slot_of_person0]) == {1}
-    np.testing.assert_array_equal(jcsat.track_centres(paths, active, gate=0.5), np.tile([0, 1], (20, 1)))
+    np.testing.assert_array_equal(association.track_centres(paths, active, gate=0.5), np.tile([0, 1], (20, 1)))
 
 
 def test_windows_and_people_count():
-    windows = jcsat.window_frames(12, 10)
+    windows = association.window_frames(12, 10)
     assert windows.shape == (12, 10) and windows[0].tolist() == [0] * 10 and windows[11].tolist() == list(range(2, 12))
     score = np.zeros((2, 3, 25, 4))
     mask = np.zeros((2, 3, 25, 4), bool)
@@ -170,13 +174,13 @@ def test_windows_and_people_count():
     score[:, :, 8, :3] = 0.5
     score[0, 0, 8, 2] = 0.1  # view 0 of frame 0 sees only two confident mid-hips
     for rule, expected in (("min", [2, 3]), ("median", [3, 3]), ("max", [3, 3])):
-        assert jcsat.people_count(score, mask, jcsat.ClusterConfig(people_rule=rule)).tolist() == expected
+        assert association.people_count(score, mask, association.ClusterConfig(people_rule=rule)).tolist() == expected
 
 
 def test_model_tensor_layout():
     scene = mocap.synthesize_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
                                    detector=mocap.PERFECT_DETECTOR)
-    people = jcsat.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
+    people = association.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
     assert set(people.seconds) == {"joint_cloud", "clustering", "tracking", "model_tensor"}
     tensor = people.person_cloud
     tracks = tensor.present.shape[0]
@@ -185,5 +189,5 @@ def test_model_tensor_layout():
     # Kept candidates of a person lie within the joint radius of its centre.
     t, f, p, m, j = np.nonzero(np.asarray(tensor.mask))
     distance = np.linalg.norm(np.asarray(tensor.points)[t, f, p, m, j] - tensor.centre[t, f], axis=-1)
-    assert (distance < np.asarray(jcsat.BODY25_JOINT_RADIUS)[j]).all()
+    assert (distance < np.asarray(association.BODY25_JOINT_RADIUS)[j]).all()
     assert not np.asarray(tensor.points)[~np.asarray(tensor.mask)].any()

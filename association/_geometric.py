@@ -53,8 +53,9 @@ from geometry import BODY25, SKEL19, Camera, Skeleton
 from ._clustering import FrameClusters
 from ._joint_cloud import JointCloud, view_pairs
 
-__all__ = ["ConsensusJoint", "GeometricConfig", "GeometricPoses", "bone_outliers", "consensus_joint",
-           "geometric_poses", "fill_missing", "reject_temporal_outliers", "structural_refinement", "track_bone_lengths"]
+__all__ = ["ConsensusJoint", "GeometricConfig", "GeometricPoses", "bone_outliers", "consensus_joint", "fill_missing",
+           "filled_centres", "geometric_poses", "reject_temporal_outliers", "structural_refinement",
+           "track_bone_lengths"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +64,7 @@ class GeometricConfig:
 
     consensus_radius: float = 0.2
     """Metres: candidates closer than this to the medoid support it. 0.2 was chosen on synthetic
-    Shelf-rig validation scenes (:func:`~jcsat.synthetic_validation`; 0.05 / 0.1 / 0.2 / 0.3 m)."""
+    Shelf-rig validation scenes (:func:`~experiments.jcsat_study.synthetic_validation`; 0.05 / 0.1 / 0.2 / 0.3 m)."""
     max_candidates: int = 32
     """Candidates per person, frame and joint type entering the medoid (by score product)."""
     inlier_pixels: float = 0.0
@@ -241,7 +242,7 @@ def geometric_poses(
     """BODY25 joints of every clustered person in every frame (see the module docstring; jitted).
 
     ``xy``/``score`` are the padded detections the ``cloud`` was built from, ``clusters`` its
-    :func:`~jcsat.cluster_frames` result.
+    :func:`~association.cluster_frames` result.
     """
     xy = jnp.asarray(xy)
     if cloud.point.shape[0] != xy.shape[0] or clusters.label.shape != cloud.valid.shape:
@@ -273,6 +274,12 @@ def fill_missing(
         joints[need, j] = joints[nearest, j]
         filled[need, j] = True
     return joints, filled
+
+
+def filled_centres(present: Bool[np.ndarray, "T F"], centre: Float[np.ndarray, "T F 3"]) -> Float[np.ndarray, "T F 3"]:
+    """Each track's cluster centre in every frame, from its nearest frame (earlier on ties) where it is present."""
+    every_frame = np.ones(present.shape[1], bool)
+    return np.stack([fill_missing(c[:, None, :], p[:, None], every_frame)[0][:, 0] for p, c in zip(present, centre)])
 
 
 def reject_temporal_outliers(

@@ -1,5 +1,5 @@
 """A straightforward loop implementation of the Joint Cloud (OpenCV + NumPy): the test oracle and the
-benchmark's baseline for :func:`jcsat.build_joint_cloud`."""
+benchmark's baseline for :func:`association.build_joint_cloud`."""
 
 from __future__ import annotations
 

@@ -50,9 +50,9 @@ class BaselineConfig:
     max_gap_frames: int = 5
     """A track absent for at most this many frames between two frames where it is present is
     bridged: the gap frames take each joint from the nearest frame that has it
-    (:func:`~jcsat.fill_missing`). A person whose MidHip goes undetected for a moment keeps a pose."""
+    (:func:`~association.fill_missing`). A person whose MidHip goes undetected for a moment keeps a pose."""
     outlier_half_window: int = 2
-    """Frames on either side of the temporal median of :func:`~jcsat.reject_temporal_outliers`
+    """Frames on either side of the temporal median of :func:`~association.reject_temporal_outliers`
     (0: no outlier rejection). Chosen on a 3 x 5 grid of synthetic Shelf-rig validation scenes
     (``python -m experiments.shelf_validate``). With the bone-outlier rejection of the structural refinement
     (2026-11-24) 2 frames and 0.05 m were best: PCP 94.18 against 90.83 without the filter and 93.80 for the
@@ -87,7 +87,7 @@ class BaselineResult(NamedTuple):
     least ``min_track_frames``, less duplicates (``duplicate_distance``); rows by frame, then by
     decreasing ``score``, the support; joints never seen by the track are (0, 0, 0)."""
     body25: Float[np.ndarray, "T F 25 3"]
-    """Per track, after :func:`~jcsat.fill_missing` (metres)."""
+    """Per track, after :func:`~association.fill_missing` (metres)."""
     body25_valid: Bool[np.ndarray, "T F 25"]
     present: Bool[np.ndarray, "T F"]
     cloud: JointCloud
