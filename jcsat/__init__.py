@@ -26,12 +26,6 @@ from ._data import DataConfig as DataConfig
 from ._data import TRAIN_CLIPS as TRAIN_CLIPS
 from ._data import VALIDATION_CLIPS as VALIDATION_CLIPS
 from ._data import WindowDataset as WindowDataset
-from ._experiment import run_shelf_experiment as run_shelf_experiment
-from ._experiment import synthetic_validation as synthetic_validation
-from ._experiment import METHODS as METHODS
-from ._experiment import SHIPPED_MODEL as SHIPPED_MODEL
-from ._experiment import ShelfExperimentConfig as ShelfExperimentConfig
-from ._experiment import ShelfExperimentResult as ShelfExperimentResult
 from ._geometric import consensus_joint as consensus_joint
 from ._geometric import ConsensusJoint as ConsensusJoint
 from ._geometric import fill_missing as fill_missing
@@ -72,9 +66,7 @@ from ._pipeline import BaselineConfig as BaselineConfig
 from ._pipeline import BaselineResult as BaselineResult
 from ._pipeline import PersonTracks as PersonTracks
 from ._pipeline import track_people as track_people
-from ._plot import matched_tracks as matched_tracks
-from ._plot import plot_frame as plot_frame
-from ._plot import MATCH_DISTANCE_M as MATCH_DISTANCE_M
+from ._shipped import SHIPPED_MODEL as SHIPPED_MODEL
 from ._train import init_state as init_state
 from ._train import learning_rate_schedule as learning_rate_schedule
 from ._train import load_model as load_model
@@ -93,12 +85,12 @@ __all__ = [
     "GeometricConfig",
     "GeometricPoses", "init_state", "JCSAT", "jcsat_loss", "JCSATConfig", "joint_cloud_frame", "JointCloud",
     "JointCloudConfig", "kmeans", "KMeansResult", "learning_rate_schedule", "load_model", "LossConfig",
-    "make_optimizer", "MATCH_DISTANCE_M", "matched_tracks", "METHODS", "numpy_joint_cloud_frame", "otap",
+    "make_optimizer", "numpy_joint_cloud_frame", "otap",
     "OTAP", "parameter_count", "pcp_hinge_loss", "people_count", "person_joint_cloud", "PersonJointCloud",
-    "PersonTracks", "plot_frame", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
-    "reject_temporal_outliers", "run_geometric_baseline", "run_shelf_experiment", "sample_batch",
-    "scene_windows", "ShelfExperimentConfig", "ShelfExperimentResult", "SHIPPED_MODEL", "sinkhorn_plan",
-    "structural_refinement", "synthetic_validation", "track_bone_lengths", "track_centres", "track_people", "train",
+    "PersonTracks", "predict_shelf15", "project_normalised", "projection_loss", "reconstruction_loss",
+    "reject_temporal_outliers", "run_geometric_baseline", "sample_batch",
+    "scene_windows", "SHIPPED_MODEL", "sinkhorn_plan",
+    "structural_refinement", "track_bone_lengths", "track_centres", "track_people", "train",
     "TRAIN_CLIPS", "TRAIN_CONFIGS", "train_step", "TrainConfig", "TrainState",
     "triangulate_candidate_pair", "VALIDATION_CLIPS", "view_pairs", "window_batch", "window_frames",
     "WindowDataset",
