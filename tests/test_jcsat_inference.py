@@ -127,13 +127,15 @@ def test_missing_input_files_are_refused_before_any_work(tmp_path):
     """A model folder without its files, or a data folder without skel.txt, is named before anything runs or
     is written (the 4D-association output used to be read only after the methods had run)."""
     out = tmp_path / "out"
+    with pytest.raises(FileNotFoundError, match=r"model folder .*model does not exist$"):
+        jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(model=str(tmp_path / "model")), out)
     (tmp_path / "model").mkdir()
     (tmp_path / "model" / "config.json").write_text("{}")
     with pytest.raises(FileNotFoundError, match=r"missing input file .*model/state\.npz$"):
         jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(model=str(tmp_path / "model")), out)
     data = tmp_path / "data" / "shelf"
     (data / "4d_association" / "detection").mkdir(parents=True)
-    for name in ["actorsGT.mat"] + [f"4d_association/detection/{view}.txt" for view in range(5)]:
+    for name in ["calibration_shelf.json", "actorsGT.mat", *(f"4d_association/detection/{v}.txt" for v in range(5))]:
         (data / name).write_text("")
     with pytest.raises(FileNotFoundError, match=r"missing input file .*4d_association/skel\.txt$"):
         jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(data_root=str(tmp_path / "data")), out)

@@ -263,9 +263,13 @@ def test_virtual_experiment_smoke(tmp_path):
 
     cfg = VirtualConfig(patterns=("half",), views=(3,), sigmas=(4.0,), frames=24, reference_frames=1,
                         lagrangian_iterations=20, estimate_frames=3, clips=("02_01_walk",))
-    with jax.enable_x64(False):  # the experiment computes in float64 without switching the session's setting
+    # In a float32 session the experiment computes in float64 for itself and leaves the session's setting alone.
+    jax.config.update("jax_enable_x64", False)
+    try:
         results = run_virtual(cfg, tmp_path, progress=False)
         assert not jax.config.jax_enable_x64
+    finally:
+        jax.config.update("jax_enable_x64", True)  # the test session's setting (conftest.py)
     for name in ("config.json", "log.jsonl", "results.json", "results.md", "mpjpe_vs_sigma.png", "mpjpe_vs_views.png"):
         assert (tmp_path / name).is_file(), name
     (cell,) = results["cells"]

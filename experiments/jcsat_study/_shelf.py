@@ -105,15 +105,17 @@ class ShelfExperimentConfig:
 
 def check_input_files(config: ShelfExperimentConfig) -> None:
     """Refuse a run whose input files are missing before any work starts (one line naming the file): the
-    model folder when the model runs, and with real data the detections, actorsGT and the 4D-association
-    output, which a run would otherwise reach only after its first stages. :func:`run_shelf_experiment`
+    model folder when the model runs, and with real data the calibration, the detections, actorsGT and the
+    4D-association output, which a run would otherwise reach only after its first stages. :func:`run_shelf_experiment`
     calls it first; a command line that trains a model before the run can call it before training."""
     needed = []
     if config.method == "jcsat" and config.model is not None:
+        if not Path(config.model).is_dir():
+            raise FileNotFoundError(f"model folder {config.model} does not exist")
         needed += [Path(config.model) / "config.json", Path(config.model) / "state.npz"]
     if config.data_root is not None:
         shelf = Path(config.data_root) / "shelf"
-        needed += [shelf / "actorsGT.mat", shelf / "4d_association" / "skel.txt"]
+        needed += [shelf / "calibration_shelf.json", shelf / "actorsGT.mat", shelf / "4d_association" / "skel.txt"]
         needed += [shelf / "4d_association" / "detection" / f"{view}.txt" for view in range(_SHELF_VIEWS)]
     missing = [path for path in needed if not path.is_file()]
     if missing:
