@@ -34,8 +34,8 @@ from pathlib import Path
 
 import jax
 import numpy as np
-
 from matplotlib.figure import Figure
+from tqdm import tqdm
 
 from geometry import H36M17, bone_lengths, mbls, mpble, mpjpe, pib, structri_virtual_rig
 from mocap import list_clips, load_clip
