@@ -64,7 +64,7 @@ class GeometricConfig:
 
     consensus_radius: float = 0.2
     """Metres: candidates closer than this to the medoid support it. 0.2 was chosen on synthetic
-    Shelf-rig validation scenes (:func:`~experiments.jcsat_study.synthetic_validation`; 0.05 / 0.1 / 0.2 / 0.3 m)."""
+    Shelf-rig validation scenes (:func:`experiments.jcsat_study.synthetic_validation`; 0.05 / 0.1 / 0.2 / 0.3 m)."""
     max_candidates: int = 32
     """Candidates per person, frame and joint type entering the medoid (by score product)."""
     inlier_pixels: float = 0.0

@@ -9,21 +9,81 @@
   discriminators on rotations and shape.
 
 Sizes are constructor arguments with CPU-sized defaults; each private module lists its public names in
-``__all__`` and they are re-exported here.
+``__all__`` and they are re-exported here. The evaluation's orchestration, tables and figures
+(``python -m experiments.dynamics``) live in :mod:`experiments.dynamics_study`.
 """
 
-from ._backbone import *  # noqa: F403
-from ._hmr import *  # noqa: F403
-from ._prior import *  # noqa: F403
-from ._tcn import *  # noqa: F403
-from ._attention import *  # noqa: F403
-from ._canonical import *  # noqa: F403
-from ._phdt import *  # noqa: F403
-from ._losses import *  # noqa: F403
-from ._data import *  # noqa: F403
-from ._jat import *  # noqa: F403
-from ._train import *  # noqa: F403
-from ._train_jat import *  # noqa: F403
-from ._evaluate import *  # noqa: F403
-from ._report import *  # noqa: F403
-from ._experiment import *  # noqa: F403
+from importlib.metadata import version as _version
+
+from ._attention import agent_masks as agent_masks
+from ._attention import sinusoidal_encoding as sinusoidal_encoding
+from ._attention import AgentAttention as AgentAttention
+from ._attention import GPTLayer as GPTLayer
+from ._attention import InputEncoder as InputEncoder
+from ._attention import KeyValues as KeyValues
+from ._backbone import ResNetBackbone as ResNetBackbone
+from ._canonical import canonical_features as canonical_features
+from ._canonical import canonicalise as canonicalise
+from ._canonical import JointAwareBias as JointAwareBias
+from ._data import build_frames as build_frames
+from ._data import check_validation_apart as check_validation_apart
+from ._data import crop_square as crop_square
+from ._data import gather_windows as gather_windows
+from ._data import scene_windows as scene_windows
+from ._data import square_boxes as square_boxes
+from ._data import video_tracks as video_tracks
+from ._data import window_starts as window_starts
+from ._data import without_crops as without_crops
+from ._data import DataConfig as DataConfig
+from ._data import Frames as Frames
+from ._data import TEST_MULTI_PERSON_CLIPS as TEST_MULTI_PERSON_CLIPS
+from ._data import TEST_SINGLE_PERSON_CLIPS as TEST_SINGLE_PERSON_CLIPS
+from ._data import TRAIN_CLIPS as TRAIN_CLIPS
+from ._evaluate import frame_metrics as frame_metrics
+from ._evaluate import predict_windows as predict_windows
+from ._evaluate import summarise as summarise
+from ._evaluate import zero_motion as zero_motion
+from ._evaluate import EvalConfig as EvalConfig
+from ._evaluate import HORIZONS as HORIZONS
+from ._evaluate import METRICS as METRICS
+from ._hmr import mean_params as mean_params
+from ._hmr import HMRHead as HMRHead
+from ._hmr import SMPLParams as SMPLParams
+from ._jat import box_features as box_features
+from ._jat import scene_tokens as scene_tokens
+from ._jat import JAT as JAT
+from ._jat import JATConfig as JATConfig
+from ._losses import frame_losses as frame_losses
+from ._losses import interpenetration as interpenetration
+from ._losses import penetration_depths as penetration_depths
+from ._losses import shape_consistency as shape_consistency
+from ._losses import FrameTargets as FrameTargets
+from ._losses import LossWeights as LossWeights
+from ._losses import PENETRATION_POINTS as PENETRATION_POINTS
+from ._phdt import crop_roots as crop_roots
+from ._phdt import params_to_joints as params_to_joints
+from ._phdt import Observation as Observation
+from ._phdt import PHDT as PHDT
+from ._phdt import PHDTConfig as PHDTConfig
+from ._phdt import Rollout as Rollout
+from ._prior import lsgan_discriminator_loss as lsgan_discriminator_loss
+from ._prior import lsgan_generator_loss as lsgan_generator_loss
+from ._prior import PosePrior as PosePrior
+from ._shipped import SHIPPED_MODEL as SHIPPED_MODEL
+from ._shipped import SHIPPED_TRANSFORMERS as SHIPPED_TRANSFORMERS
+from ._tcn import CausalTCN as CausalTCN
+from ._train import cached_features as cached_features
+from ._train import compute_features as compute_features
+from ._train import load_trained as load_trained
+from ._train import train as train
+from ._train import BackboneConfig as BackboneConfig
+from ._train import StageConfig as StageConfig
+from ._train import TrainConfig as TrainConfig
+from ._train_jat import as_multi_person as as_multi_person
+from ._train_jat import load_transformers as load_transformers
+from ._train_jat import train_all as train_all
+from ._train_jat import train_transformer as train_transformer
+from ._train_jat import TRANSFORMERS as TRANSFORMERS
+from ._train_jat import TransformerTrainConfig as TransformerTrainConfig
+
+__version__ = _version("mvmocap")

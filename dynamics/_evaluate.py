@@ -62,6 +62,12 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if max(HORIZONS) > self.horizon:
             raise ValueError(f"the horizon must reach {max(HORIZONS)} frames, got {self.horizon}")
+        if self.observed < 1:
+            raise ValueError(f"observed must be >= 1 frame, got {self.observed}")
+        if self.stride < 1:
+            raise ValueError(f"stride must be >= 1, got {self.stride}")
+        if not 0 < self.pck_alpha <= 1:
+            raise ValueError(f"pck_alpha must be in (0, 1], got {self.pck_alpha}")
 
     @property
     def length(self) -> int:

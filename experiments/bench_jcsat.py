@@ -31,6 +31,7 @@ from flax import nnx  # noqa: E402
 
 import association  # noqa: E402
 import jcsat  # noqa: E402
+from experiments import jcsat_study  # noqa: E402
 import mocap  # noqa: E402
 from experiments.bench_geometry import best_time  # noqa: E402
 
@@ -71,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         "windows_per_frame": round(len(position) / frames, 3),
     }
     shipped = jcsat.load_model(args.model)
-    default = jcsat.ShelfExperimentConfig()
+    default = jcsat_study.ShelfExperimentConfig()
     runs = {"shipped": (shipped, frames, default.aggregate, default.window_stride),
             "shipped_causal": (shipped, frames, "last", 1),
             "medium": (jcsat.JCSAT(jcsat.CONFIGS["medium"], rngs=nnx.Rngs(0)), min(args.medium_frames, frames), "last", 1)}

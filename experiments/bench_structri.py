@@ -21,8 +21,8 @@ import numpy as np  # noqa: E402
 
 from experiments.bench_geometry import interleaved_times  # noqa: E402
 from geometry import H36M17  # noqa: E402
-from structri import (constrained_reference, lem_triangulation, numpy_lem_triangulation,  # noqa: E402
-                      numpy_structural_triangulation, structural_triangulation)
+from structri import constrained_reference, lem_triangulation, structural_triangulation  # noqa: E402
+from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation  # noqa: E402
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,7 +6,7 @@ Without ``--train`` it evaluates the models shipped in ``dynamics/assets/phdt`` 
 ``--train`` first trains a backbone and PHD+T in ``OUT/train`` (three resumable stages), then the four
 transformers on that backbone's features in ``OUT/train/transformers`` (two resumable stages each): run the same
 command again after a kill. That is how the shipped models were made. Writes OUT/results.json, OUT/results.md,
-OUT/prediction_*.png, OUT/strip.png and OUT/log.jsonl. Logic: :mod:`dynamics._experiment`.
+OUT/prediction_*.png, OUT/strip.png and OUT/log.jsonl. Logic: :mod:`experiments.dynamics_study`.
 """
 
 import argparse
@@ -16,7 +16,8 @@ from pathlib import Path
 
 import geometry
 from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, StageConfig, TrainConfig,
-                      TransformerTrainConfig, load_trained, load_transformers, run_experiment, train, train_all)
+                      TransformerTrainConfig, load_trained, load_transformers, train, train_all)
+from experiments.dynamics_study import run_experiment
 
 QUICK_EVAL = dict(stride=15)
 QUICK_TRAIN = dict(

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python -m experiments.flex_synthetic --out runs/flex_synthetic 
 Without ``--train`` it evaluates the models shipped in ``flex/assets``; ``--train`` first trains them in
 ``DIR/models/<name>`` (resumable: run the same command again after a kill), which is how the shipped ones were
 made. Writes DIR/results.json, DIR/results.md, DIR/skeletons.png, DIR/mpjpe.png and DIR/log.jsonl.
-Logic: :mod:`flex._experiment`.
+Logic: :mod:`experiments.flex_study`.
 """
 
 import argparse
@@ -12,7 +12,8 @@ import dataclasses
 import json
 from pathlib import Path
 
-from flex._experiment import MODELS, SHIPPED_MODELS, ExperimentConfig, load_models, run_experiment, train_models
+from experiments.flex_study import ExperimentConfig, run_experiment, train_models
+from flex import MODELS, SHIPPED_MODELS, load_models
 
 QUICK = dict(sequences=4)
 TRAIN_STEPS = 1500

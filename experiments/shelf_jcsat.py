@@ -17,7 +17,7 @@ seeded synthetic Shelf-rig scene and says so. Writes ``config.json``, ``log.json
 ``--train`` first trains a model on synthetic scenes (:func:`jcsat.train`: from scratch, or from the run's
 ``init_model``; workdir ``--out/train``; ``--resume`` continues a killed run from its last checkpoint) and
 then evaluates it.
-Logic: :func:`jcsat.run_shelf_experiment`, :func:`jcsat.train`.
+Logic: :func:`experiments.jcsat_study.run_shelf_experiment`, :func:`jcsat.train`.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from tqdm import tqdm  # noqa: E402
 
 import association  # noqa: E402
 import jcsat  # noqa: E402
+from experiments import jcsat_study  # noqa: E402
 
 _STAGES = ("data", "geometric", "jcsat", "evaluation", "plot")
 
@@ -42,7 +43,7 @@ _STAGES = ("data", "geometric", "jcsat", "evaluation", "plot")
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m experiments.shelf_jcsat", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--method", choices=jcsat.METHODS, default="jcsat",
+    parser.add_argument("--method", choices=jcsat_study.METHODS, default="jcsat",
                         help="jcsat: the model on the baseline's tracks, scored beside the baseline (default); "
                              "geometric: Joint Cloud -> K-Means persons -> weighted medoid + re-triangulation only")
     parser.add_argument("--model", type=Path, default=None,
@@ -80,11 +81,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the synthetic scene, the K-Means restarts and training (default: %(default)s)")
-    parser.add_argument("--aggregate", choices=jcsat.AGGREGATES, default=jcsat.ShelfExperimentConfig.aggregate,
+    parser.add_argument("--aggregate", choices=jcsat.AGGREGATES, default=jcsat_study.ShelfExperimentConfig.aggregate,
                         help="mean: each frame's pose is the mean over every window that contains it (offline; chosen "
                              "on synthetic validation, experiments.shelf_validate --jcsat); last: the causal window's "
                              "last frame (online) (default: %(default)s)")
-    parser.add_argument("--window-stride", type=int, default=jcsat.ShelfExperimentConfig.window_stride,
+    parser.add_argument("--window-stride", type=int, default=jcsat_study.ShelfExperimentConfig.window_stride,
                         help="with --aggregate mean: average the windows ending on every this many frames "
                              "(default: %(default)s)")
     parser.add_argument("--structural-steps", type=int, default=association.GeometricConfig.structural_steps,
@@ -109,9 +110,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat.ShelfExperimentConfig:
-    """The run's :class:`jcsat.ShelfExperimentConfig` from the parsed options (``model``: None for the shipped one)."""
-    return jcsat.ShelfExperimentConfig(
+def experiment_config(args: argparse.Namespace, model: Path | None) -> jcsat_study.ShelfExperimentConfig:
+    """The run's :class:`experiments.jcsat_study.ShelfExperimentConfig` from the parsed options (``model``: None for the shipped one)."""
+    return jcsat_study.ShelfExperimentConfig(
         method=args.method, model=None if model is None else str(model),
         data_root=None if args.data_root is None else str(args.data_root),
         quick=args.quick, seed=args.seed, plot=not args.no_plot,
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
             bar.update(1)
         bar.set_postfix_str(stage)
 
-    result = jcsat.run_shelf_experiment(config, args.out, log=log, progress=progress)
+    result = jcsat_study.run_shelf_experiment(config, args.out, log=log, progress=progress)
     bar.update(1)
     bar.close()
     print(result.table)

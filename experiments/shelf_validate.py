@@ -3,7 +3,7 @@
     .venv/bin/python -m experiments.shelf_validate [--seeds 101 102 103] [--people 4] [--frames 90]
         [--protocol voxelpose|jcsat|4dassoc] [--jcsat] [--json]
 
-Scores a grid of :class:`association.BaselineConfig` variants with :func:`jcsat.synthetic_validation` and prints one
+Scores a grid of :class:`association.BaselineConfig` variants with :func:`experiments.jcsat_study.synthetic_validation` and prints one
 row per setting: PCP (``--protocol``, all synthetic people) per seed and their mean. The grid varies the
 temporal outlier filter's window and distance (distance 0 is a plain median filter), chosen under the
 VoxelPose protocol, the duplicate suppression distance, chosen under the JCSAT protocol (the only one
@@ -12,7 +12,7 @@ prior weight and bone-outlier ratio (:class:`association.GeometricConfig`), chos
 The defaults of :class:`association.BaselineConfig` are the best rows of these tables, or the simpler of tied rows
 (their docstrings give the figures). About 6 minutes on 2 CPU cores (2026-11-24, without ``--jcsat``).
 ``--jcsat`` adds the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`); the main job's default
-(``jcsat.ShelfExperimentConfig.aggregate``) is the better of those rows.
+(``experiments.jcsat_study.ShelfExperimentConfig.aggregate``) is the better of those rows.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import jax  # noqa: E402
 
 import association  # noqa: E402
 import jcsat  # noqa: E402
+from experiments import jcsat_study  # noqa: E402
 import mocap  # noqa: E402
 
 
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     model = jcsat.load_model(jcsat.SHIPPED_MODEL) if args.jcsat else None
-    table = jcsat.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames, args.protocol,
+    table = jcsat_study.synthetic_validation(settings(), tuple(args.seeds), args.people, args.frames, args.protocol,
                                        model=model)
     if args.json:
         print(json.dumps(table))

@@ -3,7 +3,7 @@
 Run: ``.venv/bin/python -m experiments.structri_virtual --out runs/structri_virtual [--quick]``
 (--quick: 2 patterns x C in {2, 3, 4} x sigma in {2, 10}, 120 poses, under 2 minutes on 2 CPU cores).
 Writes DIR/config.json, DIR/log.jsonl, DIR/results.json, DIR/results.md, DIR/mpjpe_vs_*.png.
-Logic: :mod:`structri._virtual`.
+Logic: :mod:`experiments.structri_study`.
 """
 
 import argparse
@@ -12,7 +12,7 @@ import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_experimental_ynn_fusion_type=")
 
-from structri._virtual import VirtualConfig, run_virtual  # noqa: E402
+from experiments.structri_study import VirtualConfig, run_virtual  # noqa: E402
 
 QUICK = dict(views=(2, 3, 4), sigmas=(2.0, 10.0), frames=120, reference_frames=3)
 

@@ -1,11 +1,14 @@
 """FLEX (Gordon, Raab et al., ECCV 2022): extrinsic-free multi-view motion reconstruction.
 
 The network (fusion layers F_Q / F_S with multi-view convolution and cross-view attention, encoders E_Q / E_S,
-forward kinematics of the :data:`geometry.FLEX20` skeleton, per-joint rotation discriminator), its losses
-(Eq. 3-9), the calibration-free input normalisation, training samples from 3D motion seen by static or
-moving virtual cameras, the BVH export of a prediction, and the experiment's camera-dependent triangulation
-baselines and metrics. Each private module defines ``__all__``; the public names are re-exported here.
+forward kinematics of the :data:`geometry.FLEX20` skeleton, per-joint rotation discriminator) and the averaged
+monocular fusion of Table 5c, its losses (Eq. 3-9), the calibration-free input normalisation, training samples
+from 3D motion seen by static or moving virtual cameras, the shipped models, the BVH export of a prediction, and
+the camera-dependent triangulation baselines and metrics that FLEX is compared with. The synthetic experiment
+itself lives in :mod:`experiments.flex_study`.
 """
+
+from importlib.metadata import version as _version
 
 from ._baselines import baseline_cameras as baseline_cameras
 from ._baselines import motion_metrics as motion_metrics
@@ -19,14 +22,6 @@ from ._data import sign_continuous as sign_continuous
 from ._data import symmetric_bone_lengths as symmetric_bone_lengths
 from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
-from ._experiment import averaged_monocular as averaged_monocular
-from ._experiment import load_models as load_models
-from ._experiment import plot_camera_poses as plot_camera_poses
-from ._experiment import run_experiment as run_experiment
-from ._experiment import train_models as train_models
-from ._experiment import ExperimentConfig as ExperimentConfig
-from ._experiment import MODELS as MODELS
-from ._experiment import SHIPPED_MODELS as SHIPPED_MODELS
 from ._export import to_bvh as to_bvh
 from ._losses import adversarial_loss as adversarial_loss
 from ._losses import contact_loss as contact_loss
@@ -37,6 +32,7 @@ from ._losses import position_loss as position_loss
 from ._losses import root_loss as root_loss
 from ._losses import skeleton_loss as skeleton_loss
 from ._losses import LossWeights as LossWeights
+from ._model import averaged_monocular as averaged_monocular
 from ._model import flex_forward_kinematics as flex_forward_kinematics
 from ._model import parameter_count as parameter_count
 from ._model import CONFIGS as CONFIGS
@@ -48,6 +44,10 @@ from ._model import RotationDiscriminator as RotationDiscriminator
 from ._normalise import normalise_2d as normalise_2d
 from ._normalise import normalise_view as normalise_view
 from ._normalise import NormalisedInput as NormalisedInput
+from ._shipped import load_models as load_models
+from ._shipped import MAIN_MODEL as MAIN_MODEL
+from ._shipped import MODELS as MODELS
+from ._shipped import SHIPPED_MODELS as SHIPPED_MODELS
 from ._train import build_pool as build_pool
 from ._train import load_flex as load_flex
 from ._train import train as train
@@ -58,13 +58,4 @@ from ._train import TrainConfig as TrainConfig
 from ._train import TrainState as TrainState
 from ._train import VALIDATION_CLIPS as VALIDATION_CLIPS
 
-__all__ = [
-    "adversarial_loss", "averaged_monocular", "baseline_cameras", "Batch", "build_pool", "CONFIGS", "contact_loss",
-    "contact_velocity_loss", "DataConfig", "Discriminator", "discriminator_loss", "ExperimentConfig", "Flex",
-    "flex_forward_kinematics", "FlexConfig", "FlexOutputs", "generator_loss", "load_flex", "load_models",
-    "local_rotations", "LossWeights", "make_batch", "make_sample", "MODELS", "motion_metrics", "MotionMetrics",
-    "normalise_2d", "normalise_view", "NormalisedInput", "parameter_count", "plot_camera_poses", "position_loss",
-    "root_frame", "root_loss", "RotationDiscriminator", "run_experiment", "SHIPPED_MODELS", "sign_continuous",
-    "skeleton_loss", "symmetric_bone_lengths", "TEST_CLIPS", "to_bvh", "train", "TRAIN_CLIPS", "train_models",
-    "train_step", "TrainConfig", "TrainState", "triangulation_baseline", "VALIDATION_CLIPS",
-]
+__version__ = _version("mvmocap")

@@ -59,7 +59,7 @@ from . import _data
 from ._normalise import normalise_2d
 
 __all__ = [
-    "CONFIGS", "Discriminator", "Flex", "FlexConfig", "FlexOutputs", "RotationDiscriminator",
+    "CONFIGS", "Discriminator", "Flex", "FlexConfig", "FlexOutputs", "RotationDiscriminator", "averaged_monocular",
     "flex_forward_kinematics", "parameter_count",
 ]
 
@@ -507,3 +507,19 @@ class Discriminator(nnx.Module):
         joint_deltas = rotations[:, delta:] - rotations[:, :-delta]
         root_deltas = (root_rotations[:, :, delta:] - root_rotations[:, :, :-delta])[..., None, :]
         return self.joints(joint_deltas), self.root(root_deltas)[..., 0]
+
+
+def averaged_monocular(model: Flex, batch: _data.Batch) -> jax.Array:
+    """Table 5c's averaged monocular fusion: a 1-view ``model`` runs on each view alone; the views' shared joint
+    rotations (sign-aligned quaternion mean) and bone lengths are averaged, each view keeps its own root rotation.
+    Returns the FLEX20 camera-frame poses ``(batch, views, frames, 20, 3)`` (metres, root-relative)."""
+    if model.config.views != 1:
+        raise ValueError(f"averaged monocular fusion needs a 1-view model, got {model.config.views} views")
+    views = batch.points_2d.shape[1]
+    outputs = [model(batch.points_2d[:, k:k + 1], batch.confidences[:, k:k + 1]) for k in range(views)]
+    rotations = jnp.stack([o.rotations for o in outputs], axis=1)  # (B, K, T, 14, 4)
+    sign = jnp.where(jnp.sum(rotations * rotations[:, :1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    mean_rotation = jnp.mean(sign * rotations, axis=1)
+    bones = jnp.mean(jnp.stack([o.bone_lengths for o in outputs], axis=1), axis=1)
+    roots = jnp.concatenate([o.root_rotations for o in outputs], axis=1)
+    return flex_forward_kinematics(bones, mean_rotation, roots, model.config.rest_pose)

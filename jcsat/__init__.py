@@ -18,12 +18,6 @@ from ._data import TRAIN_CLIPS as TRAIN_CLIPS
 from ._data import VALIDATION_CLIPS as VALIDATION_CLIPS
 from ._data import window_batch as window_batch
 from ._data import WindowDataset as WindowDataset
-from ._experiment import run_shelf_experiment as run_shelf_experiment
-from ._experiment import synthetic_validation as synthetic_validation
-from ._experiment import METHODS as METHODS
-from ._experiment import SHIPPED_MODEL as SHIPPED_MODEL
-from ._experiment import ShelfExperimentConfig as ShelfExperimentConfig
-from ._experiment import ShelfExperimentResult as ShelfExperimentResult
 from ._inference import AGGREGATES as AGGREGATES
 from ._inference import predict_shelf15 as predict_shelf15
 from ._losses import bone_losses as bone_losses
@@ -39,12 +33,10 @@ from ._model import JCSAT as JCSAT
 from ._model import JCSATConfig as JCSATConfig
 from ._model import load_model as load_model
 from ._model import parameter_count as parameter_count
+from ._model import SHIPPED_MODEL as SHIPPED_MODEL
 from ._otap import OTAP as OTAP
 from ._otap import otap as otap
 from ._otap import sinkhorn_plan as sinkhorn_plan
-from ._plot import matched_tracks as matched_tracks
-from ._plot import plot_frame as plot_frame
-from ._plot import MATCH_DISTANCE_M as MATCH_DISTANCE_M
 from ._train import init_state as init_state
 from ._train import learning_rate_schedule as learning_rate_schedule
 from ._train import make_optimizer as make_optimizer

@@ -48,7 +48,7 @@ from geometry import BODY25, SHELF15
 
 from ._otap import OTAP
 
-__all__ = ["CONFIGS", "JCSAT", "JCSATConfig", "aggregation_variant", "load_model", "parameter_count"]
+__all__ = ["CONFIGS", "JCSAT", "JCSATConfig", "SHIPPED_MODEL", "aggregation_variant", "load_model", "parameter_count"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -476,6 +476,10 @@ class JCSAT(nnx.Module):
         dropout are drawn from it. ``last_frame_only``: see :meth:`body25`.
         """
         return self.convert(self.body25(points, mask, key=key, last_frame_only=last_frame_only))
+
+
+SHIPPED_MODEL = Path(__file__).parent / "assets" / "shelf_wide_4da"
+"""The trained default model (``config.json`` + ``state.npz``; ``jcsat/assets/README.md`` has the command that made it)."""
 
 
 def load_model(path: str | Path) -> JCSAT:

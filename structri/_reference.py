@@ -70,16 +70,21 @@ def constrained_reference(
     confidences: Float[ArrayLike, "views joints"] | None = None,
     max_steps: int = 512,
 ) -> ReferenceResult:
-    """Solve ``min 1/2 b^T A b - beta^T b  s.t. |b_k| = L_k`` for one frame to machine precision."""
-    points_2d = jnp.asarray(points_2d, jnp.float64)
-    if points_2d.ndim != 3:
-        raise ValueError(f"constrained_reference solves one frame: points_2d (views, joints, 2), got {points_2d.shape}")
-    P = projection_matrices(cameras).astype(jnp.float64)
-    lengths = jnp.asarray(bone_lengths, jnp.float64)
-    weights = _default_weights(points_2d.shape[0], points_2d.shape[1], confidences, jnp.float64)
-    starts = jnp.stack([ls_triangulation(points_2d, P, skeleton, weights).bones,
-                        structural_triangulation(points_2d, P, lengths, skeleton, weights).bones])
-    return _reference(points_2d, P, lengths, weights, starts, skeleton=skeleton, max_steps=max_steps)
+    """Solve ``min 1/2 b^T A b - beta^T b  s.t. |b_k| = L_k`` for one frame to machine precision.
+
+    Always in float64, whatever ``jax_enable_x64`` says: 64-bit types are enabled for this call only
+    (``jax.enable_x64``), so a float32 session gets a float64 result and keeps its own setting."""
+    with jax.enable_x64(True):
+        points_2d = jnp.asarray(points_2d, jnp.float64)
+        if points_2d.ndim != 3:
+            raise ValueError(
+                f"constrained_reference solves one frame: points_2d (views, joints, 2), got {points_2d.shape}")
+        P = projection_matrices(cameras).astype(jnp.float64)
+        lengths = jnp.asarray(bone_lengths, jnp.float64)
+        weights = _default_weights(points_2d.shape[0], points_2d.shape[1], confidences, jnp.float64)
+        starts = jnp.stack([ls_triangulation(points_2d, P, skeleton, weights).bones,
+                            structural_triangulation(points_2d, P, lengths, skeleton, weights).bones])
+        return _reference(points_2d, P, lengths, weights, starts, skeleton=skeleton, max_steps=max_steps)
 
 
 @jax.jit(static_argnames=("skeleton", "max_steps"))

@@ -134,10 +134,23 @@ def test_zero_motion_repeats_the_last_observed_frame():
         assert_allclose(predicted, np.repeat(np.asarray(last)[:, None], 4, axis=1))
 
 
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("horizon", 29, "the horizon must reach 30 frames"),
+    ("observed", 0, "observed must be >= 1 frame"),
+    ("stride", 0, "stride must be >= 1"),
+    ("pck_alpha", 0.0, r"pck_alpha must be in \(0, 1\]"),
+])
+def test_a_bad_evaluation_option_is_refused_by_name(option, value, message):
+    from dynamics import EvalConfig
+
+    with pytest.raises(ValueError, match=message):
+        EvalConfig(**{option: value})
+
+
 @pytest.mark.slow
 def test_experiment_on_the_shipped_models_writes_every_output(tmp_path):
-    from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, load_trained, load_transformers,
-                          run_experiment)
+    from dynamics import SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, load_trained, load_transformers
+    from experiments.dynamics_study import run_experiment
 
     backbone, model = load_trained(SHIPPED_MODEL)
     mpjat = load_transformers(SHIPPED_TRANSFORMERS)["MPJAT"]

@@ -1,4 +1,4 @@
-"""FLEX's experiment (flex/_experiment.py, experiments/flex_synthetic.py) on tiny untrained models."""
+"""FLEX's experiment (experiments/flex_study, experiments/flex_synthetic.py) on tiny untrained models."""
 
 import dataclasses
 import json
@@ -11,7 +11,8 @@ from numpy.testing import assert_allclose
 
 import training
 from experiments import flex_synthetic
-from flex import CONFIGS, MODELS, DataConfig, ExperimentConfig, Flex, averaged_monocular, load_models, make_batch
+from experiments.flex_study import ExperimentConfig
+from flex import CONFIGS, MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch
 
 FRAMES = 24
 
@@ -87,6 +88,21 @@ def test_help_explains_every_option(capsys):
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames"):
         assert option in text
     assert ExperimentConfig().sequences == 16
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("sequences", 0, "sequences must be >= 1"),
+    ("frames", 2, "frames must be >= 3"),
+    ("clips", (), "clips must name at least one clip"),
+    ("perturbations", (0.03, -0.01), "perturbations must be relative scales > 0"),
+    ("n_steps", -1, "n_steps must be >= 0"),
+    ("plot_views", (0, 0), "plot_views must be distinct views of 0..3"),
+    ("plot_views", (4,), "plot_views must be distinct views of 0..3"),
+    ("plot_frames", 0, "plot_frames must be in 1..frames=64"),
+])
+def test_a_bad_option_is_refused_by_name(option, value, message):
+    with pytest.raises(ValueError, match=message):
+        ExperimentConfig(**{option: value})
 
 
 def test_a_model_folder_without_the_main_model_is_named(tmp_path):

@@ -13,6 +13,7 @@ import association
 import geometry
 import jcsat
 import mocap
+from experiments import jcsat_study
 
 FRAMES = 8
 CONFIG = association.BaselineConfig(max_candidates=6)  # one padding for every scene here: one compilation
@@ -113,9 +114,9 @@ def test_temporal_outlier_rejection():
 
 
 def test_experiment_end_to_end(tmp_path):
-    config = jcsat.ShelfExperimentConfig(method="geometric", synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
+    config = jcsat_study.ShelfExperimentConfig(method="geometric", synthetic_people=2, synthetic_frames=FRAMES, baseline=CONFIG)
     events = []
-    result = jcsat.run_shelf_experiment(config, tmp_path, log=events.append)
+    result = jcsat_study.run_shelf_experiment(config, tmp_path, log=events.append)
     assert "SYNTHETIC" in result.table and "geometric" in result.table
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["synthetic"] and set(metrics["scores"]["geometric"]) == set(mocap.EVALUATION_PROTOCOLS)
@@ -124,7 +125,7 @@ def test_experiment_end_to_end(tmp_path):
     assert (tmp_path / "frame.png").stat().st_size > 10_000
     assert [e["stage"] for e in events][-1] == "done"
     with pytest.raises(ValueError, match="method"):
-        jcsat.ShelfExperimentConfig(method="voxelpose")
+        jcsat_study.ShelfExperimentConfig(method="voxelpose")
 
 
 def test_reprojection_check_adds_views_and_rejects_far_detections():

@@ -10,6 +10,7 @@ from flax import nnx
 import association
 import jcsat
 import mocap
+from experiments import jcsat_study
 
 FRAMES = 12
 TINY = jcsat.JCSATConfig(
@@ -81,9 +82,9 @@ def test_mean_aggregate_averages_the_grid_windows_that_contain_the_frame(baselin
 
 @pytest.mark.slow
 def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp_path):
-    config = jcsat.ShelfExperimentConfig(quick=True, synthetic_people=2, views=(0, 1, 2, 4), perturb_cameras=1,
+    config = jcsat_study.ShelfExperimentConfig(quick=True, synthetic_people=2, views=(0, 1, 2, 4), perturb_cameras=1,
                                          baseline=association.BaselineConfig(max_candidates=6))
-    result = jcsat.run_shelf_experiment(config, tmp_path)
+    result = jcsat_study.run_shelf_experiment(config, tmp_path)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert set(metrics["scores"]) == {"jcsat", "geometric"}
     assert metrics["data"]["views"] == [0, 1, 2, 4] and metrics["data"]["perturbed_cameras"] == [0]
@@ -93,17 +94,53 @@ def test_main_job_with_the_shipped_model_dropped_views_and_perturbed_cameras(tmp
     np.testing.assert_array_equal(jcsat_rows.frame, geometric_rows.frame)
     # A model that learned anything puts people near the baseline's (not at the window centre or far off).
     assert np.median(np.linalg.norm(jcsat_rows.joints - geometric_rows.joints, axis=-1)) < 0.3
-    with pytest.raises(ValueError, match="two distinct views"):
-        jcsat.ShelfExperimentConfig(views=(1, 1))
-    with pytest.raises(ValueError, match="only 2 views are kept"):
-        jcsat.run_shelf_experiment(jcsat.ShelfExperimentConfig(quick=True, views=(0, 1), perturb_cameras=3), tmp_path)
     with pytest.raises(FileNotFoundError, match="not a saved model folder"):
         jcsat.load_model(tmp_path)
 
 
+@pytest.mark.parametrize(("options", "message"), [
+    ({"views": (0, 0, 1, 2, 3, 4)}, r"views must not repeat a camera, got \(0, 0, 1, 2, 3, 4\)"),
+    ({"views": (1,)}, "at least two distinct views"),
+    ({"views": (0, 5)}, r"views \(0, 5\) outside the Shelf rig's 0..4"),
+    ({"views": (-1, 2)}, "outside the Shelf rig's 0..4"),
+    ({"views": (0, 1), "perturb_cameras": 3}, "perturb_cameras=3 but only 2 views are kept"),
+    ({"perturb_cameras": 6}, "perturb_cameras=6 but only 5 views are kept"),
+    ({"perturb_cameras": -1}, "perturb_cameras must be >= 0"),
+    ({"window_stride": 0}, "window_stride must be >= 1"),
+    ({"aggregate": "median"}, "aggregate must be one of"),
+    ({"synthetic_people": 0}, "synthetic_people and synthetic_frames must be >= 1"),
+    ({"synthetic_frames": 0}, "synthetic_people and synthetic_frames must be >= 1"),
+])
+def test_a_bad_main_job_option_is_refused_by_name(options, message):
+    with pytest.raises(ValueError, match=message):
+        jcsat_study.ShelfExperimentConfig(**options)
+
+
+def test_missing_input_files_are_refused_before_any_work(tmp_path):
+    """A model folder without its files, or a data folder without skel.txt, is named before anything runs or
+    is written (the 4D-association output used to be read only after the methods had run)."""
+    out = tmp_path / "out"
+    with pytest.raises(FileNotFoundError, match=r"model folder .*model does not exist$"):
+        jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(model=str(tmp_path / "model")), out)
+    (tmp_path / "model").mkdir()
+    (tmp_path / "model" / "config.json").write_text("{}")
+    with pytest.raises(FileNotFoundError, match=r"missing input file .*model/state\.npz$"):
+        jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(model=str(tmp_path / "model")), out)
+    data = tmp_path / "data" / "shelf"
+    (data / "4d_association" / "detection").mkdir(parents=True)
+    for name in ["calibration_shelf.json", "actorsGT.mat", *(f"4d_association/detection/{v}.txt" for v in range(5))]:
+        (data / name).write_text("")
+    with pytest.raises(FileNotFoundError, match=r"missing input file .*4d_association/skel\.txt$"):
+        jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(data_root=str(tmp_path / "data")), out)
+    (data / "actorsGT.mat").unlink()
+    with pytest.raises(FileNotFoundError, match=r"actorsGT\.mat \(and 1 more\)"):
+        jcsat_study.run_shelf_experiment(jcsat_study.ShelfExperimentConfig(data_root=str(tmp_path / "data")), out)
+    assert not out.exists()
+
+
 def test_synthetic_validation_scores_baseline_settings_and_the_model_aggregates():
     model = jcsat.JCSAT(TINY, rngs=nnx.Rngs(0))
-    table = jcsat.synthetic_validation({"default": association.BaselineConfig()}, seeds=(3,), people=2,
+    table = jcsat_study.synthetic_validation({"default": association.BaselineConfig()}, seeds=(3,), people=2,
                                        frames=FRAMES, model=model)
     assert set(table) == {"default", "jcsat, last", "jcsat, mean", "jcsat, mean, stride 2", "jcsat, mean, stride 3"}
     for row in table.values():
@@ -116,7 +153,7 @@ def test_main_job_options_reach_the_baseline_config():
     from experiments import shelf_jcsat
 
     defaults = shelf_jcsat.experiment_config(shelf_jcsat.parse_args([]), None)
-    assert defaults == jcsat.ShelfExperimentConfig()
+    assert defaults == jcsat_study.ShelfExperimentConfig()
     args = shelf_jcsat.parse_args(["--structural-steps", "3", "--max-bone-deviation", "0.25",
                                    "--outlier-half-window", "3", "--outlier-distance", "0", "--seed", "4"])
     baseline = shelf_jcsat.experiment_config(args, None).baseline

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from geometry import H36M17, Skeleton, bone_lengths, structri_virtual_rig
+from experiments.structri_study import VirtualConfig, run_virtual
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
-                      lem_triangulation, ls_triangulation, numpy_lem_triangulation,
-                      numpy_structural_triangulation_frames,
-                      reduced_objective, reduced_problem, structural_triangulation)
+                      lem_triangulation, ls_triangulation, reduced_objective, reduced_problem,
+                      structural_triangulation)
 from structri._solver import _solve_symmetric
+from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation_frames
 
 # H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
 _LENGTH = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
@@ -147,6 +148,19 @@ def test_against_certified_reference(scene):
     assert np.max(violation(st)) < 2e-3
 
 
+def test_reference_runs_in_float64_in_a_float32_session(scene):
+    """The oracle enables 64-bit types for its own call only: a float32 session gets the certified float64
+    optimum (the same one as in float64 sessions) and keeps its float32 setting."""
+    _, _, points, P = scene
+    in_float64 = constrained_reference(points[0], P, LENGTHS)
+    with jax.enable_x64(False):
+        ref = constrained_reference(points[0], P, LENGTHS)
+        assert not jax.config.jax_enable_x64
+    assert ref.pose.dtype == ref.bones.dtype == jnp.float64
+    assert bool(ref.certified)
+    np.testing.assert_allclose(ref.pose, in_float64.pose, rtol=0, atol=1e-12)
+
+
 def test_schedules_and_single_step_agree_at_one_step(scene):
     _, _, points, P = scene
     a = structural_triangulation(points, P, LENGTHS, n_steps=1)
@@ -247,17 +261,39 @@ def test_virtual_experiment_smoke(tmp_path):
     """The virtual-camera experiment on a tiny grid: files written, ST beats LEM, targets evaluated."""
     import json
 
-    from structri._virtual import VirtualConfig, run_virtual
-
     cfg = VirtualConfig(patterns=("half",), views=(3,), sigmas=(4.0,), frames=24, reference_frames=1,
                         lagrangian_iterations=20, estimate_frames=3, clips=("02_01_walk",))
-    results = run_virtual(cfg, tmp_path, progress=False)
+    # In a float32 session the experiment computes in float64 for itself and leaves the session's setting alone.
+    jax.config.update("jax_enable_x64", False)
+    try:
+        results = run_virtual(cfg, tmp_path, progress=False)
+        assert not jax.config.jax_enable_x64
+    finally:
+        jax.config.update("jax_enable_x64", True)  # the test session's setting (conftest.py)
     for name in ("config.json", "log.jsonl", "results.json", "results.md", "mpjpe_vs_sigma.png", "mpjpe_vs_views.png"):
         assert (tmp_path / name).is_file(), name
     (cell,) = results["cells"]
     assert cell["mpjpe_mm"]["ST"] < cell["mpjpe_mm"]["LEM"]
     assert cell["mpble_mm"]["ST"] < 0.5
     assert json.loads((tmp_path / "config.json").read_text())["frames"] == 24
+
+
+@pytest.mark.parametrize(("option", "value", "message"), [
+    ("patterns", ("round", "ring"), "patterns must be some of"),
+    ("patterns", (), "patterns must be some of"),
+    ("views", (3, 1), "views must be distinct camera counts >= 2"),
+    ("views", (3, 3), "views must be distinct camera counts >= 2"),
+    ("sigmas", (2.0, -1.0), "sigmas must be pixel noise levels >= 0"),
+    ("frames", 0, "frames must be >= 1"),
+    ("frame_stride", 0, "frame_stride must be >= 1"),
+    ("estimate_frames", 0, "estimate_frames must be >= 1"),
+    ("n_steps", -1, "n_steps must be >= 0"),
+    ("reference_frames", -1, "reference_frames must be >= 0"),
+    ("up_axis", "x", "up_axis must be 'y' or 'z'"),
+])
+def test_a_bad_virtual_option_is_refused_by_name(option, value, message):
+    with pytest.raises(ValueError, match=message):
+        VirtualConfig(**{option: value})
 
 
 def test_no_lapack_in_batched_solvers(scene):

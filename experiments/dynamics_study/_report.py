@@ -5,16 +5,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-import geometry  # noqa: E402
-import mocap  # noqa: E402
-
-from ._evaluate import HORIZONS  # noqa: E402
+import geometry
+import mocap
+from dynamics import HORIZONS
 
 __all__ = ["overlay_meshes", "plot_prediction", "results_markdown"]
 
@@ -49,7 +45,8 @@ def results_markdown(summary: Mapping[str, dict]) -> str:
 def plot_prediction(summary: Mapping[str, dict], group: str, path) -> None:
     """Fig. 5.1: every metric against the future frame, one line per method."""
     result = summary[group]["prediction"]
-    figure, axes = plt.subplots(1, len(_NAMES), figsize=(4 * len(_NAMES), 3.2))
+    figure = Figure(figsize=(4 * len(_NAMES), 3.2))
+    axes = figure.subplots(1, len(_NAMES))
     for axis, metric in zip(axes, _NAMES):
         for method, metrics in result.items():
             values = metrics[metric]
@@ -61,7 +58,6 @@ def plot_prediction(summary: Mapping[str, dict], group: str, path) -> None:
     figure.suptitle(f"Prediction, {_GROUP_TITLES[group]}")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
-    plt.close(figure)
 
 
 def overlay_meshes(frame: np.ndarray, K: np.ndarray, vertices: Sequence[np.ndarray], body: geometry.BodyModel,

@@ -1,5 +1,5 @@
 """One-frame figure: a person's Joint Cloud, the baseline skeletons and the ground truth in 3D, and their
-reprojection into every view (matplotlib, Agg backend).
+reprojection into every view (matplotlib's object API: no backend, no pyplot).
 
 Ground truth is drawn thick and black under the predictions; a predicted track is coloured when it
 matches a ground-truth person (mean joint distance below :data:`MATCH_DISTANCE_M`) and drawn thin,
@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+from matplotlib.figure import Figure
 
 import geometry
 from association import BaselineResult
@@ -78,11 +80,6 @@ def plot_frame(
     track with the most clustered candidates in the frame, coloured by BODY25 joint type. The
     skeletons drawn are ``track_poses`` ``(T, 15, 3)`` (default: the baseline's poses).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     output = set(np.unique(result.predictions.person).tolist())
     present = [int(t) for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
     shelf15 = _track_shelf15(result, frame) if track_poses is None else track_poses
@@ -103,8 +100,8 @@ def plot_frame(
     gt_style = {"color": "k", "linewidth": 4.0, "alpha": 0.45}
 
     num_views = rig.K.shape[0]
-    fig = plt.figure(figsize=(16, 9))
-    colours = plt.get_cmap("tab20", 25)(np.arange(25))
+    fig = Figure(figsize=(16, 9))
+    colours = matplotlib.colormaps["tab20"].resampled(25)(np.arange(25))
     ax = fig.add_subplot(2, 3, 1, projection="3d")
     ax.scatter(*points.T, c=colours[joint_type], s=6, alpha=0.6, label="Joint Cloud (one person)")
     for person in ground_truth:
@@ -137,4 +134,3 @@ def plot_frame(
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)

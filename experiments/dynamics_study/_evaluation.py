@@ -25,18 +25,12 @@ from jaxtyping import Array, Float
 import geometry
 import mocap
 import training
+from dynamics import (TEST_MULTI_PERSON_CLIPS, EvalConfig, build_frames, compute_features, crop_square,
+                      predict_windows, square_boxes, summarise, video_tracks, zero_motion)
 
-from ._data import TEST_MULTI_PERSON_CLIPS, build_frames, crop_square, square_boxes, video_tracks
-from ._evaluate import EvalConfig, predict_windows, summarise, zero_motion
 from ._report import overlay_meshes, plot_prediction, results_markdown
-from ._train import compute_features
 
-__all__ = ["SHIPPED_MODEL", "SHIPPED_TRANSFORMERS", "run_experiment"]
-
-SHIPPED_MODEL = Path(__file__).resolve().parent / "assets" / "phdt"
-"""The shipped backbone and PHD+T (``backbone/``, ``phdt/``), trained by the command in ``assets/README.md``."""
-SHIPPED_TRANSFORMERS = Path(__file__).resolve().parent / "assets" / "transformers"
-"""The shipped JAT, MPJAT and their ablations on the shipped backbone (:func:`~dynamics.load_transformers`)."""
+__all__ = ["STRIP_FRAMES", "STRIP_SIZE", "run_experiment", "write_strip"]
 
 STRIP_FRAMES: tuple[int, ...] = (12, 24, 25, 29, 34, 44, 54)
 """Window frames shown in the strip: two observed, then future frames 1, 5, 10, 20 and 30."""

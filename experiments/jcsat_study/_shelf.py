@@ -11,6 +11,9 @@ then the model on each track's windows (:func:`~jcsat.predict_shelf15`, ``aggreg
 the table has the model, the baseline and (on real data) the 4D-association output. ``views`` keeps
 a subset of the cameras (the others see nothing: paper Table 6); ``perturb_cameras`` builds the Joint
 Cloud with K cameras' calibration perturbed as in Table 8 (:func:`geometry.perturb_extrinsics_bounded`).
+
+:func:`run_shelf_experiment` reads the data (:func:`_load_data`), runs the methods (:func:`_run_methods`),
+writes their predictions, scores them (:func:`_score`) and writes the metrics and the figure.
 """
 
 from __future__ import annotations
@@ -18,32 +21,30 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
 import numpy as np
 
-import mocap
-
 import geometry
+import mocap
 from association import BaselineConfig, BaselineResult, run_geometric_baseline
+from jcsat import AGGREGATES, JCSAT, SHIPPED_MODEL, load_model, predict_shelf15
 
-from ._inference import AGGREGATES, predict_shelf15
-from ._model import JCSAT, load_model
+from ._plot import plot_frame
 
-__all__ = ["ShelfExperimentConfig", "ShelfExperimentResult", "run_shelf_experiment", "METHODS", "SHIPPED_MODEL",
+__all__ = ["METHODS", "ShelfExperimentConfig", "ShelfExperimentResult", "check_input_files", "run_shelf_experiment",
            "synthetic_validation"]
 
 METHODS: tuple[str, ...] = ("jcsat", "geometric")
 """``jcsat``: the model on the Joint Cloud of the baseline's tracks (scored beside the baseline);
 ``geometric``: the learning-free baseline alone."""
 
-SHIPPED_MODEL = Path(__file__).parent / "assets" / "shelf_wide_4da"
-"""The trained default model (``config.json`` + ``state.npz``; the README has the command that made it)."""
-
 _QUICK_REAL_FRAMES = 60
+_SHELF_VIEWS = 5
+"""Cameras of the Shelf rig, real and synthetic (:func:`mocap.shelf_cameras`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,7 +53,7 @@ class ShelfExperimentConfig:
 
     method: str = "jcsat"
     model: str | None = None
-    """Folder written by :func:`~jcsat.train` (``<workdir>/model``); None: :data:`SHIPPED_MODEL`."""
+    """Folder written by :func:`~jcsat.train` (``<workdir>/model``); None: :data:`~jcsat.SHIPPED_MODEL`."""
     data_root: str | None = None
     """Folder with ``shelf/``; None runs the synthetic scene."""
     quick: bool = False
@@ -85,10 +86,41 @@ class ShelfExperimentConfig:
             raise ValueError(f"aggregate must be one of {AGGREGATES}, got {self.aggregate!r}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
-        if self.views is not None and len(set(self.views)) < 2:
-            raise ValueError(f"at least two distinct views are needed, got {self.views}")
+        if self.views is not None:
+            if len(set(self.views)) < len(self.views):
+                raise ValueError(f"views must not repeat a camera, got {self.views}")
+            if len(self.views) < 2:
+                raise ValueError(f"at least two distinct views are needed, got {self.views}")
+            if not set(self.views) <= set(range(_SHELF_VIEWS)):
+                raise ValueError(f"views {self.views} outside the Shelf rig's 0..{_SHELF_VIEWS - 1}")
         if self.perturb_cameras < 0:
             raise ValueError(f"perturb_cameras must be >= 0, got {self.perturb_cameras}")
+        kept = _SHELF_VIEWS if self.views is None else len(self.views)
+        if self.perturb_cameras > kept:
+            raise ValueError(f"perturb_cameras={self.perturb_cameras} but only {kept} views are kept")
+        if self.synthetic_people < 1 or self.synthetic_frames < 1:
+            raise ValueError(f"synthetic_people and synthetic_frames must be >= 1, got {self.synthetic_people} "
+                             f"and {self.synthetic_frames}")
+
+
+def check_input_files(config: ShelfExperimentConfig) -> None:
+    """Refuse a run whose input files are missing before any work starts (one line naming the file): the
+    model folder when the model runs, and with real data the calibration, the detections, actorsGT and the
+    4D-association output, which a run would otherwise reach only after its first stages. :func:`run_shelf_experiment`
+    calls it first; a command line that trains a model before the run can call it before training."""
+    needed = []
+    if config.method == "jcsat" and config.model is not None:
+        if not Path(config.model).is_dir():
+            raise FileNotFoundError(f"model folder {config.model} does not exist")
+        needed += [Path(config.model) / "config.json", Path(config.model) / "state.npz"]
+    if config.data_root is not None:
+        shelf = Path(config.data_root) / "shelf"
+        needed += [shelf / "calibration_shelf.json", shelf / "actorsGT.mat", shelf / "4d_association" / "skel.txt"]
+        needed += [shelf / "4d_association" / "detection" / f"{view}.txt" for view in range(_SHELF_VIEWS)]
+    missing = [path for path in needed if not path.is_file()]
+    if missing:
+        raise FileNotFoundError(f"missing input file {missing[0]}" + (f" (and {len(missing) - 1} more)"
+                                                                       if len(missing) > 1 else ""))
 
 
 class ShelfExperimentResult(NamedTuple):
@@ -117,9 +149,6 @@ def _score_table(scores: dict[str, dict[str, mocap.ShelfScore]], actors: tuple[i
 
 def _keep_views(detections: list[list[mocap.Detections]], views: tuple[int, ...]) -> list[list[mocap.Detections]]:
     """``detections`` with every view not in ``views`` emptied (the camera saw nothing)."""
-    num_views = len(detections[0])
-    if not set(views) <= set(range(num_views)):
-        raise ValueError(f"views {views} outside the rig's 0..{num_views - 1}")
 
     def empty(det: mocap.Detections) -> mocap.Detections:
         joints = tuple(c[:0] for c in det.joints)
@@ -137,26 +166,26 @@ def _perturbed(rig: geometry.Camera, cameras: tuple[int, ...], seed: int) -> geo
                         rig, noisy)
 
 
-def run_shelf_experiment(
-    config: ShelfExperimentConfig,
-    out_dir: str | Path,
-    log: Callable[[dict], None] = lambda event: None,
-    progress: Callable[[str], None] = lambda stage: None,
-) -> ShelfExperimentResult:
-    """Run ``config`` and write ``config.json``, ``predictions.jsonl``, ``metrics.json`` (and
-    ``frame.png``) to ``out_dir``. ``log`` receives one JSON-ready dict per event, ``progress`` the
-    name of each stage as it starts."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2) + "\n")
-    started = time.perf_counter()
+class _ShelfData(NamedTuple):
+    """What a run reads: the scene (synthetic or real), with the kept views and perturbed cameras applied."""
 
-    def event(stage: str, **fields) -> None:
-        log({"stage": stage, "elapsed_s": round(time.perf_counter() - started, 3), **fields})
+    rig: geometry.Camera
+    """The calibration the Joint Cloud is built with (``perturb_cameras`` of them perturbed)."""
+    exact_rig: geometry.Camera
+    detections: list[list[mocap.Detections]]
+    frame_indices: np.ndarray
+    ground_truth: mocap.EvaluationGroundTruth
+    actors: tuple[int, ...]
+    views: tuple[int, ...]
+    synthetic: bool
+    description: dict
+    """The ``data`` entry of ``metrics.json`` (and of the ``data`` event)."""
 
-    progress("data")
+
+def _load_data(config: ShelfExperimentConfig) -> _ShelfData:
+    """The synthetic scene (``data_root`` None) or the real Shelf test frames, their ground truth and actors;
+    the views outside ``config.views`` emptied and the first ``perturb_cameras`` kept ones perturbed."""
     synthetic = config.data_root is None
-    scene = None
     if synthetic:
         people = 3 if config.quick else config.synthetic_people
         frames = 40 if config.quick else config.synthetic_frames
@@ -166,8 +195,8 @@ def run_shelf_experiment(
         ground_truth = mocap.EvaluationGroundTruth(frame_indices, np.swapaxes(scene.shelf15, 0, 1),
                                                    np.ones((people, frames), bool))
         actors = tuple(range(people))
-        data = {"kind": "synthetic", "people": people, "frames": frames, "seed": config.seed,
-                "clips": list(scene.placement.names)}
+        description = {"kind": "synthetic", "people": people, "frames": frames, "seed": config.seed,
+                       "clips": list(scene.placement.names)}
     else:
         root = Path(config.data_root)
         rig = mocap.shelf_cameras(root)
@@ -176,20 +205,32 @@ def run_shelf_experiment(
             detections, frame_indices = detections[:_QUICK_REAL_FRAMES], frame_indices[:_QUICK_REAL_FRAMES]
         ground_truth = mocap.shelf_evaluation_ground_truth(root, frames=frame_indices)
         actors = (0, 1, 2, 3)
-        data = {"kind": "shelf", "frames": [int(frame_indices[0]), int(frame_indices[-1])], "data_root": str(root)}
+        description = {"kind": "shelf", "frames": [int(frame_indices[0]), int(frame_indices[-1])],
+                       "data_root": str(root)}
     views = tuple(range(len(detections[0]))) if config.views is None else tuple(sorted(config.views))
     if config.views is not None:
         detections = _keep_views(detections, views)
     exact_rig = rig
-    if config.perturb_cameras > len(views):
-        raise ValueError(f"perturb_cameras={config.perturb_cameras} but only {len(views)} views are kept")
     if config.perturb_cameras:
         rig = _perturbed(rig, views[:config.perturb_cameras], config.perturb_seed)
-    data |= {"views": list(views), "perturbed_cameras": list(views[:config.perturb_cameras])}
-    event("data", **data)
+    description |= {"views": list(views), "perturbed_cameras": list(views[:config.perturb_cameras])}
+    return _ShelfData(rig, exact_rig, detections, frame_indices, ground_truth, actors, views, synthetic, description)
 
+
+class _MethodOutputs(NamedTuple):
+    baseline: BaselineResult
+    predictions: dict[str, mocap.PosePredictions]
+    """Method name -> its predictions, ``config.method`` first."""
+    track_poses: np.ndarray | None
+    """The model's Shelf15 poses of every track and frame ``(tracks, frames, 15, 3)`` (method ``jcsat``)."""
+
+
+def _run_methods(config: ShelfExperimentConfig, data: _ShelfData, event: Callable[..., None],
+                 progress: Callable[[str], None]) -> _MethodOutputs:
+    """The geometric baseline, then (method ``jcsat``) the model on the baseline's tracks; the stage timings are
+    added to the baseline's ``seconds``."""
     progress("geometric")
-    result = run_geometric_baseline(rig, detections, frame_indices, config.baseline)
+    result = run_geometric_baseline(data.rig, data.detections, data.frame_indices, config.baseline)
     event("geometric", seconds={k: round(v, 3) for k, v in result.seconds.items()},
           tracks=int(result.present.shape[0]), predictions=int(result.predictions.num_predictions))
     compared = {"geometric": result.predictions}
@@ -198,7 +239,7 @@ def run_shelf_experiment(
         progress("jcsat")
         model = load_model(SHIPPED_MODEL if config.model is None else config.model)
         rows = result.predictions
-        position = np.searchsorted(frame_indices, rows.frame)
+        position = np.searchsorted(data.frame_indices, rows.frame)
         start = time.perf_counter()
         poses = predict_shelf15(model, result.person_cloud, rows.person, position, aggregate=config.aggregate,
                                 stride=config.window_stride)
@@ -208,51 +249,98 @@ def run_shelf_experiment(
         track_poses = np.zeros(result.present.shape + (15, 3))
         track_poses[rows.person, position] = poses
         event("jcsat", seconds=round(seconds, 3), windows=len(position),
-              frames_per_second=round(len(frame_indices) / seconds, 2))
-    for name, predictions in compared.items():
+              frames_per_second=round(len(data.frame_indices) / seconds, 2))
+    return _MethodOutputs(result, compared, track_poses)
+
+
+def _score(config: ShelfExperimentConfig, data: _ShelfData, predictions: dict[str, mocap.PosePredictions]
+           ) -> tuple[dict[str, dict[str, mocap.ShelfScore]], tuple[int, ...]]:
+    """Every method's (and on real data the 4D-association output's) score under every protocol, and the actors
+    its PCP averages over: all on synthetic data; on real data actors 1-3, those annotated in the evaluated
+    frames (actor 2 is absent from the first 60)."""
+    averaged = (data.actors if data.synthetic
+                else tuple(a for a in (0, 1, 2) if data.ground_truth.annotated[a].any()))
+    compared = dict(predictions)
+    if not data.synthetic:
+        four_da = mocap.predictions_from_4dassoc(Path(config.data_root) / "shelf" / "4d_association" / "skel.txt")
+        compared["4DA output"] = mocap.PosePredictions.create(
+            *(field[np.isin(four_da.frame, data.frame_indices)] if field is not None else None for field in four_da)
+        )
+    scores = {name: {p: mocap.evaluate_shelf(pred, data.ground_truth, p, averaged)
+                     for p in mocap.EVALUATION_PROTOCOLS}
+              for name, pred in compared.items()}
+    return scores, averaged
+
+
+def _title(config: ShelfExperimentConfig, data: _ShelfData, averaged: tuple[int, ...]) -> str:
+    """The two lines above the score table: the method and setting, the data and the averaged actors."""
+    kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesize_scene), NOT the real Shelf data" if data.synthetic
+            else f"real Shelf, actorsGT frames {data.frame_indices[0]}..{data.frame_indices[-1]}")
+    views = data.views
+    setting = f"views {list(views)}" + (f", perturbed cameras {list(views[:config.perturb_cameras])}"
+                                        if config.perturb_cameras else "")
+    model = f"model: {config.model or SHIPPED_MODEL}, beside " if config.method == "jcsat" else ""
+    return (f"method: {config.method} ({model}the learning-free Joint Cloud baseline 'geometric'); {setting}\n"
+            f"data: {kind}; PCP averaged over actors {', '.join(str(a + 1) for a in averaged)}")
+
+
+def _plot(path: Path, config: ShelfExperimentConfig, data: _ShelfData, outputs: _MethodOutputs) -> int:
+    """Write the figure of the frame :func:`_plot_frame_choice` picks; returns that frame's index in the run."""
+    result, truth_all = outputs.baseline, data.ground_truth
+    frame = _plot_frame_choice(result, truth_all.annotated)
+    truth = truth_all.joints[:, frame][truth_all.annotated[:, frame]]
+    plot_frame(path, data.exact_rig, mocap.pad_detections(data.detections, config.baseline.max_candidates), result,
+               frame, truth, title=f"{config.method}, {'synthetic' if data.synthetic else 'Shelf'} frame "
+                                   f"{int(data.frame_indices[frame])}",
+               track_poses=None if outputs.track_poses is None else outputs.track_poses[:, frame])
+    return frame
+
+
+def run_shelf_experiment(
+    config: ShelfExperimentConfig,
+    out_dir: str | Path,
+    log: Callable[[dict], None] = lambda event: None,
+    progress: Callable[[str], None] = lambda stage: None,
+) -> ShelfExperimentResult:
+    """Run ``config`` and write ``config.json``, ``predictions.jsonl``, ``metrics.json`` (and
+    ``frame.png``) to ``out_dir``. ``log`` receives one JSON-ready dict per event, ``progress`` the
+    name of each stage as it starts. Missing input files are refused before anything is written."""
+    check_input_files(config)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2) + "\n")
+    started = time.perf_counter()
+
+    def event(stage: str, **fields) -> None:
+        log({"stage": stage, "elapsed_s": round(time.perf_counter() - started, 3), **fields})
+
+    progress("data")
+    data = _load_data(config)
+    event("data", **data.description)
+
+    outputs = _run_methods(config, data, event, progress)
+    for name, predictions in outputs.predictions.items():
         mocap.write_predictions(out / ("predictions.jsonl" if name == config.method else f"predictions_{name}.jsonl"),
                                 predictions)
 
     progress("evaluation")
-    # Actors 1-3 (those annotated in the evaluated frames: actor 2 is absent from the first 60).
-    averaged = actors if synthetic else tuple(a for a in (0, 1, 2) if ground_truth.annotated[a].any())
-    if not synthetic:
-        four_da = mocap.predictions_from_4dassoc(Path(config.data_root) / "shelf" / "4d_association" / "skel.txt")
-        compared["4DA output"] = mocap.PosePredictions.create(
-            *(field[np.isin(four_da.frame, frame_indices)] if field is not None else None for field in four_da)
-        )
-    scores = {name: {p: mocap.evaluate_shelf(pred, ground_truth, p, averaged) for p in mocap.EVALUATION_PROTOCOLS}
-              for name, pred in compared.items()}
-    table = _score_table(scores, actors)
-    kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesize_scene), NOT the real Shelf data" if synthetic
-            else f"real Shelf, actorsGT frames {frame_indices[0]}..{frame_indices[-1]}")
-    setting = f"views {list(views)}" + (f", perturbed cameras {list(views[:config.perturb_cameras])}"
-                                        if config.perturb_cameras else "")
-    title = (f"method: {config.method} ({'model: ' + str(config.model or SHIPPED_MODEL) + ', beside ' if config.method == 'jcsat' else ''}"
-             f"the learning-free Joint Cloud baseline 'geometric'); {setting}\n"
-             f"data: {kind}; PCP averaged over actors {', '.join(str(a + 1) for a in averaged)}")
+    scores, averaged = _score(config, data, outputs.predictions)
+    title = _title(config, data, averaged)
     metrics = {
-        "method": config.method, "data": data, "synthetic": synthetic,
+        "method": config.method, "data": data.description, "synthetic": data.synthetic,
         "scores": {name: {p: s.to_dict() for p, s in by.items()} for name, by in scores.items()},
-        "seconds": {k: round(v, 3) for k, v in result.seconds.items()},
+        "seconds": {k: round(v, 3) for k, v in outputs.baseline.seconds.items()},
         "total_seconds": round(time.perf_counter() - started, 3),
     }
     event("evaluation", pcp={name: {p: round(s.average["pcp"], 2) for p, s in by.items()} for name, by in scores.items()})
 
     if config.plot:
         progress("plot")
-        from ._plot import plot_frame
-
-        frame = _plot_frame_choice(result, ground_truth.annotated)
-        truth = ground_truth.joints[:, frame][ground_truth.annotated[:, frame]]
-        plot_frame(out / "frame.png", exact_rig, mocap.pad_detections(detections, config.baseline.max_candidates), result,
-                   frame, truth, title=f"{config.method}, {'synthetic' if synthetic else 'Shelf'} frame "
-                                       f"{int(frame_indices[frame])}",
-                   track_poses=None if track_poses is None else track_poses[:, frame])
-        metrics["plot"] = {"file": "frame.png", "frame": int(frame_indices[frame])}
+        frame = _plot(out / "frame.png", config, data, outputs)
+        metrics["plot"] = {"file": "frame.png", "frame": int(data.frame_indices[frame])}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     event("done", total_seconds=metrics["total_seconds"])
-    return ShelfExperimentResult(metrics, title + "\n" + table, result)
+    return ShelfExperimentResult(metrics, title + "\n" + _score_table(scores, data.actors), outputs.baseline)
 
 
 def _plot_frame_choice(result: BaselineResult, annotated: np.ndarray) -> int:

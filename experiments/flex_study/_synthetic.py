@@ -14,10 +14,10 @@ Methods:
   perturbed by each relative scale in ``perturbations`` (Table 1's protocol, one draw per sequence and view), and,
   for moving cameras, the stale calibration of the first frame.
 - Ablations (Table 5): FLEX models trained with 1, 2 and 3 views, each given the first views of the same samples;
-  ground-truth versus detected 2D; fusion: averaged monocular (:func:`averaged_monocular`: the 1-view model on every
+  ground-truth versus detected 2D; fusion: averaged monocular (:func:`~flex.averaged_monocular`: the 1-view model on every
   view, its shared rotations and bones averaged over the views), late fusion and FLEX's early fusion.
 
-The models (:data:`MODELS`) are read from ``model_dir`` (default: the shipped ``flex/assets``) or trained by
+The models (:data:`~flex.MODELS`) are read from ``model_dir`` (default: :data:`~flex.SHIPPED_MODELS`) or trained by
 :func:`train_models`, which is how the shipped ones were made.
 """
 
@@ -29,34 +29,21 @@ import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
+from matplotlib.figure import Figure
 
 import mocap
-from geometry import FLEX20, H36M17
+from flex import (CONFIGS, MAIN_MODEL, MODELS, TEST_CLIPS, Batch, DataConfig, Flex, TrainConfig, averaged_monocular,
+                  load_flex, make_batch, motion_metrics, train, triangulation_baseline)
+from geometry import FLEX20, H36M17, remap_joints
 
-from ._baselines import motion_metrics, triangulation_baseline
-from ._data import Batch, DataConfig, make_batch
-from ._model import CONFIGS, Flex, flex_forward_kinematics
-from ._train import TEST_CLIPS, TrainConfig, load_flex, train
+__all__ = ["ExperimentConfig", "plot_camera_poses", "run_experiment", "train_models"]
 
-__all__ = ["ExperimentConfig", "MODELS", "SHIPPED_MODELS", "averaged_monocular", "load_models", "plot_camera_poses",
-           "run_experiment", "train_models"]
-
-SHIPPED_MODELS = Path(__file__).parent / "assets"
-MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
-    "flex_4views": (4, "early"),
-    "flex_3views": (3, "early"),
-    "flex_2views": (2, "early"),
-    "flex_1view": (1, "early"),
-    "late_fusion_4views": (4, "late"),
-}
-"""The experiment's models: name -> (views, fusion), each the ``"small"`` config otherwise."""
-_MAIN = "flex_4views"
+_TEST_VIEWS = 4
+"""Cameras of every test sample."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,6 +63,23 @@ class ExperimentConfig:
     plot_frames: int = 4
     """Frames (evenly spaced) of the first dynamic sample drawn in ``skeletons.png``."""
 
+    def __post_init__(self) -> None:
+        if self.sequences < 1:
+            raise ValueError(f"sequences must be >= 1, got {self.sequences}")
+        if self.frames < 3:
+            raise ValueError(f"frames must be >= 3 (the acceleration error needs three), got {self.frames}")
+        if not self.clips:
+            raise ValueError("clips must name at least one clip")
+        if any(not scale > 0 for scale in self.perturbations):
+            raise ValueError(f"perturbations must be relative scales > 0, got {self.perturbations}")
+        if self.n_steps < 0:
+            raise ValueError(f"n_steps must be >= 0, got {self.n_steps}")
+        if not self.plot_views or len(set(self.plot_views)) < len(self.plot_views) or not set(
+                self.plot_views) <= set(range(_TEST_VIEWS)):
+            raise ValueError(f"plot_views must be distinct views of 0..{_TEST_VIEWS - 1}, got {self.plot_views}")
+        if not 1 <= self.plot_frames <= self.frames:
+            raise ValueError(f"plot_frames must be in 1..frames={self.frames}, got {self.plot_frames}")
+
 
 def _train_config(name: str, steps: int, seed: int, cache_dir: Path) -> TrainConfig:
     views, fusion = MODELS[name]
@@ -89,7 +93,7 @@ def _train_config(name: str, steps: int, seed: int, cache_dir: Path) -> TrainCon
 
 def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple[str, ...] = tuple(MODELS),
                  log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> dict[str, Flex]:
-    """Train :data:`MODELS` (``names``) in ``workdir/<name>`` for ``steps`` steps each, resuming a run that
+    """Train :data:`~flex.MODELS` (``names``) in ``workdir/<name>`` for ``steps`` steps each, resuming a run that
     has checkpoints; a finished model folder ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships.
     The sample pools are cached once for all models in ``workdir/data_cache``."""
     models = {}
@@ -103,31 +107,6 @@ def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple
     return models
 
 
-def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
-    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ablation models are left
-    out, an absent main model is an error."""
-    if not (Path(model_dir) / _MAIN / "state.npz").is_file():
-        raise FileNotFoundError(f"{model_dir} has no saved main model {_MAIN}/ (config.json, state.npz)")
-    return {name: load_flex(Path(model_dir) / name) for name in MODELS
-            if (Path(model_dir) / name / "state.npz").is_file()}
-
-
-def averaged_monocular(model: Flex, batch: Batch) -> jax.Array:
-    """Table 5c's averaged monocular fusion: a 1-view ``model`` runs on each view alone; the views' shared joint
-    rotations (sign-aligned quaternion mean) and bone lengths are averaged, each view keeps its own root rotation.
-    Returns the FLEX20 camera-frame poses ``(batch, views, frames, 20, 3)`` (metres, root-relative)."""
-    if model.config.views != 1:
-        raise ValueError(f"averaged monocular fusion needs a 1-view model, got {model.config.views} views")
-    views = batch.points_2d.shape[1]
-    outputs = [model(batch.points_2d[:, k:k + 1], batch.confidences[:, k:k + 1]) for k in range(views)]
-    rotations = jnp.stack([o.rotations for o in outputs], axis=1)  # (B, K, T, 14, 4)
-    sign = jnp.where(jnp.sum(rotations * rotations[:, :1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
-    mean_rotation = jnp.mean(sign * rotations, axis=1)
-    bones = jnp.mean(jnp.stack([o.bone_lengths for o in outputs], axis=1), axis=1)
-    roots = jnp.concatenate([o.root_rotations for o in outputs], axis=1)
-    return flex_forward_kinematics(bones, mean_rotation, roots, model.config.rest_pose)
-
-
 def _metrics(pred, gt, skeleton) -> dict[str, float]:
     m = motion_metrics(pred, gt, skeleton)
     return {"mpjpe_mm": float(m.mpjpe), "acceleration_error_mm": float(m.acceleration_error),
@@ -139,7 +118,7 @@ def _test_batches(config: ExperimentConfig) -> dict[tuple[str, str], Batch]:
     batches = {}
     for index, motion in enumerate(("static", "dynamic")):
         key = jax.random.fold_in(jax.random.key(config.seed), index)
-        data = DataConfig(views=4, frames=config.frames, clips=config.clips, camera_motion=motion)
+        data = DataConfig(views=_TEST_VIEWS, frames=config.frames, clips=config.clips, camera_motion=motion)
         batches[motion, "detected"] = make_batch(key, data, config.sequences)
         batches[motion, "gt"] = make_batch(key, dataclasses.replace(data, detector=mocap.PERFECT_DETECTOR),
                                            config.sequences)
@@ -159,8 +138,8 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
     """Evaluate every method (module docstring) and write ``out/results.json``, ``out/results.md`` and the PNGs;
     returns the results. ``models`` must hold the main model ``flex_4views``; an ablation whose model is absent is
     skipped and listed in the results as ``missing_models``."""
-    if _MAIN not in models:
-        raise ValueError(f"models lacks the main model {_MAIN!r} (has {sorted(models)})")
+    if MAIN_MODEL not in models:
+        raise ValueError(f"models lacks the main model {MAIN_MODEL!r} (has {sorted(models)})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
@@ -174,7 +153,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
     for motion in ("static", "dynamic"):
         for source in ("detected", "gt"):
             batch = batches[motion, source]
-            main = models[_MAIN](batch.points_2d, batch.confidences).joints_relative
+            main = models[MAIN_MODEL](batch.points_2d, batch.confidences).joints_relative
             predictions[motion, source, "FLEX"] = main
             add(rows, {"camera_motion": motion, "input_2d": source, "method": "FLEX (4 views)",
                        "calibration": "none", **_metrics(main, batch.joints, FLEX20)})
@@ -201,7 +180,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
         fusions = [("averaged monocular", "flex_1view", lambda: averaged_monocular(models["flex_1view"], batch)),
                    ("late fusion", "late_fusion_4views",
                     lambda: models["late_fusion_4views"](batch.points_2d, batch.confidences).joints_relative),
-                   ("early fusion (FLEX)", _MAIN, lambda: predictions[motion, "detected", "FLEX"])]
+                   ("early fusion (FLEX)", MAIN_MODEL, lambda: predictions[motion, "detected", "FLEX"])]
         for variant, pred in ((variant, predict()) for variant, name, predict in fusions if name in models):
             add(ablations, {"camera_motion": motion, "ablation": "fusion", "variant": variant,
                             **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else H36M17)})
@@ -249,10 +228,9 @@ def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int,
                       title: str = ""):
     """A matplotlib figure of camera-frame poses, front view (x right, y up on the page): one row per view, one
     column per frame. ``poses`` maps a label to ``(H36M17 joints (views, frames, 17, 3), colour)``."""
-    import matplotlib.pyplot as plt
-
     frames = np.asarray(frames)
-    figure, axes = plt.subplots(len(views), len(frames), figsize=(2.6 * len(frames), 3.2 * len(views)), squeeze=False)
+    figure = Figure(figsize=(2.6 * len(frames), 3.2 * len(views)))
+    axes = figure.subplots(len(views), len(frames), squeeze=False)
     for row, view in enumerate(views):
         for column, frame in enumerate(frames):
             ax = axes[row, column]
@@ -275,11 +253,6 @@ def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int,
 
 def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, path: Path) -> None:
     """Ground truth, FLEX and Structural Triangulation with the stale calibration, first dynamic sample."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from geometry import remap_joints
 
     poses = {"ground truth": (batch.joints[0], "black"),
              "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17), "tab:red"),
@@ -289,16 +262,12 @@ def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, p
     figure = plot_camera_poses(poses, config.plot_views, frames,
                                "Moving cameras, held-out clip: camera-frame poses (root-relative)")
     figure.savefig(path, dpi=110)
-    plt.close(figure)
 
 
 def _plot_bars(results: dict, path: Path) -> None:
     """MPJPE of every method and calibration, static and moving cameras, detected 2D."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    figure = Figure(figsize=(12, 4.5))
+    axes = figure.subplots(1, 2, sharey=True)
     for ax, motion in zip(axes, ("static", "dynamic")):
         rows = [r for r in results["main"] if r["camera_motion"] == motion and r["input_2d"] == "detected"]
         labels = [r["method"].replace("Structural Triangulation", "ST") + ("" if r["calibration"] == "none" else
@@ -310,4 +279,3 @@ def _plot_bars(results: dict, path: Path) -> None:
     axes[0].set_ylabel("MPJPE protocol #1 (mm)")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
-    plt.close(figure)

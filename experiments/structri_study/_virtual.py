@@ -34,14 +34,16 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from matplotlib.figure import Figure
+from tqdm import tqdm
 
 from geometry import H36M17, bone_lengths, mbls, mpble, mpjpe, pib, structri_virtual_rig
+from mocap import list_clips, load_clip
+from structri import (constrained_reference, estimate_bone_lengths, lagrangian_triangulation, lem_triangulation,
+                      ls_triangulation, projection_matrices, reduced_objective, reduced_problem,
+                      structural_triangulation)
 
-from ._reference import constrained_reference, reduced_objective
-from ._solver import (estimate_bone_lengths, lagrangian_triangulation, lem_triangulation, ls_triangulation,
-                      projection_matrices, reduced_problem, structural_triangulation)
-
-__all__ = ["VirtualConfig", "load_poses", "run_virtual", "write_report"]
+__all__ = ["METHODS", "VirtualConfig", "load_poses", "run_virtual", "write_report"]
 
 METHODS = ("LEM", "DLT_m", "LS", "ST", "ST_exact", "Lagrangian", "ST_est")
 """LEM: the official DLT baseline, run in millimetres as the official code does; DLT_m: the same DLT run
@@ -49,6 +51,10 @@ in metres (the unnormalised DLT is not unit-invariant, see :func:`structri.lem_t
 the pelvis at the origin it is about 20 % better in metres and nearly equals LS); ST: ST + SCA, exact
 lengths; ST_exact: SCA with the exact (re-solved) update; ST_est: ST + SCA with estimated lengths (the
 paper's ST*)."""
+
+
+_PATTERNS = ("round", "half")
+"""The official rigs: cameras on a full ring or on half of it (:func:`geometry.structri_virtual_rig`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,11 +79,25 @@ class VirtualConfig:
     """Frames per cell (the first ones drawn) solved by the certified reference."""
     estimate_frames: int = 10
 
+    def __post_init__(self) -> None:
+        if not self.patterns or not set(self.patterns) <= set(_PATTERNS):
+            raise ValueError(f"patterns must be some of {_PATTERNS}, got {self.patterns}")
+        if not self.views or min(self.views) < 2 or len(set(self.views)) < len(self.views):
+            raise ValueError(f"views must be distinct camera counts >= 2, got {self.views}")
+        if not self.sigmas or min(self.sigmas) < 0:
+            raise ValueError(f"sigmas must be pixel noise levels >= 0, got {self.sigmas}")
+        for name in ("frames", "frame_stride", "estimate_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("n_steps", "lagrangian_iterations", "reference_frames"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.up_axis not in ("y", "z"):
+            raise ValueError(f"up_axis must be 'y' or 'z', got {self.up_axis!r}")
+
 
 def load_poses(cfg: VirtualConfig, assets: str | Path | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(poses (F, 17, 3) m, exact lengths (F, 16) m, person id (F,))`` drawn as ``cfg`` says."""
-    from mocap import list_clips, load_clip  # mocap depends on geometry only; imported lazily to keep structri light
-
     kwargs = {} if assets is None else {"assets": assets}
     names = cfg.clips or tuple(list_clips(**kwargs))
     poses, lengths, person = [], [], []
@@ -211,10 +231,15 @@ def _targets(cells: list[dict]) -> dict:
 
 
 def run_virtual(cfg: VirtualConfig, out_dir: str | Path, progress: bool = True, assets: str | Path | None = None) -> dict:
-    """Run the grid, write ``config.json``, ``log.jsonl``, ``results.json``, ``results.md`` and plots."""
-    from tqdm import tqdm
+    """Run the grid, write ``config.json``, ``log.jsonl``, ``results.json``, ``results.md`` and plots.
 
-    jax.config.update("jax_enable_x64", True)
+    Every solver runs in float64 (the poses and projections are float64 NumPy arrays): 64-bit JAX types are
+    enabled for this call only (``jax.enable_x64``), the global setting is left as it was."""
+    with jax.enable_x64(True):
+        return _run_virtual(cfg, out_dir, progress, assets)
+
+
+def _run_virtual(cfg: VirtualConfig, out_dir: str | Path, progress: bool, assets: str | Path | None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.json").write_text(json.dumps(dataclasses.asdict(cfg), indent=2))
@@ -241,11 +266,6 @@ def run_virtual(cfg: VirtualConfig, out_dir: str | Path, progress: bool = True, 
 def write_report(results: dict, out_dir: str | Path) -> None:
     """``results.md`` (paper layout: LEM / LS / ST per pattern and camera count, sigma across) and the
     Fig. 6-style plots ``mpjpe_vs_sigma.png`` and ``mpjpe_vs_views.png``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out_dir = Path(out_dir)
     cells = results["cells"]
     cfg = results["config"]
@@ -284,7 +304,8 @@ def write_report(results: dict, out_dir: str | Path) -> None:
     mid_sigma = min(cfg["sigmas"], key=lambda s: abs(s - 10))
     for name, xs, key, label in (("mpjpe_vs_sigma", cfg["sigmas"], lambda p, x: (p, mid_views, x), f"σ (px), C = {mid_views}"),
                                  ("mpjpe_vs_views", cfg["views"], lambda p, x: (p, x, mid_sigma), f"cameras C, σ = {mid_sigma:g} px")):
-        fig, axes = plt.subplots(1, len(cfg["patterns"]), figsize=(5 * len(cfg["patterns"]), 4), squeeze=False)
+        fig = Figure(figsize=(5 * len(cfg["patterns"]), 4))
+        axes = fig.subplots(1, len(cfg["patterns"]), squeeze=False)
         for ax, p in zip(axes[0], cfg["patterns"]):
             for m in shown:
                 ax.plot(xs, [by_key[key(p, x)]["mpjpe_mm"][m] for x in xs], marker="o", label=m)
@@ -296,4 +317,3 @@ def write_report(results: dict, out_dir: str | Path) -> None:
         axes[0][0].legend()
         fig.tight_layout()
         fig.savefig(out_dir / f"{name}.png", dpi=100)
-        plt.close(fig)

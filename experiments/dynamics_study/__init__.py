@@ -1,0 +1,11 @@
+"""The dynamics evaluation (``python -m experiments.dynamics``): the models and ZeroMotion on held-out synthetic
+videos, written as tables (Tables 5.2-5.11's layout), prediction plots (Fig. 5.1) and a strip of observed and
+predicted meshes rendered into the video frames."""
+
+from ._evaluation import run_experiment as run_experiment
+from ._evaluation import write_strip as write_strip
+from ._evaluation import STRIP_FRAMES as STRIP_FRAMES
+from ._evaluation import STRIP_SIZE as STRIP_SIZE
+from ._report import overlay_meshes as overlay_meshes
+from ._report import plot_prediction as plot_prediction
+from ._report import results_markdown as results_markdown

@@ -1,0 +1,8 @@
+"""FLEX's synthetic experiment (``python -m experiments.flex_synthetic``): FLEX against camera-dependent
+triangulation on held-out CMU clips with static and moving cameras (paper Tables 1, 3 and 5), its tables and
+figures, and the training of the experiment's models (:data:`flex.MODELS`)."""
+
+from ._synthetic import plot_camera_poses as plot_camera_poses
+from ._synthetic import run_experiment as run_experiment
+from ._synthetic import train_models as train_models
+from ._synthetic import ExperimentConfig as ExperimentConfig

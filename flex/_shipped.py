@@ -1,0 +1,32 @@
+"""The shipped FLEX models: the synthetic experiment's main model and its ablations, saved in ``flex/assets``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from ._model import Flex
+from ._train import load_flex
+
+__all__ = ["MAIN_MODEL", "MODELS", "SHIPPED_MODELS", "load_models"]
+
+SHIPPED_MODELS = Path(__file__).parent / "assets"
+MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
+    "flex_4views": (4, "early"),
+    "flex_3views": (3, "early"),
+    "flex_2views": (2, "early"),
+    "flex_1view": (1, "early"),
+    "late_fusion_4views": (4, "late"),
+}
+"""The experiment's models: name -> (views, fusion), each the ``"small"`` config otherwise."""
+MAIN_MODEL = "flex_4views"
+"""The model of :data:`MODELS` that the experiment cannot run without (FLEX, 4 views, early fusion)."""
+
+
+def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
+    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ablation models are left
+    out, an absent main model is an error."""
+    if not (Path(model_dir) / MAIN_MODEL / "state.npz").is_file():
+        raise FileNotFoundError(f"{model_dir} has no saved main model {MAIN_MODEL}/ (config.json, state.npz)")
+    return {name: load_flex(Path(model_dir) / name) for name in MODELS
+            if (Path(model_dir) / name / "state.npz").is_file()}
