@@ -37,7 +37,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 import mocap
-from geometry import FLEX20, H36M17
+from geometry import FLEX20, STRUCTRI17
 
 from ._baselines import motion_metrics, triangulation_baseline
 from ._data import Batch, DataConfig, make_batch
@@ -189,7 +189,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
                                                   n_steps=config.n_steps)
                     predictions[motion, source, f"{label}, {name}"] = pred
                     add(rows, {"camera_motion": motion, "input_2d": source, "method": label, "calibration": name,
-                               **_metrics(pred, batch.joints, H36M17)})
+                               **_metrics(pred, batch.joints, STRUCTRI17)})
         batch = batches[motion, "detected"]
         for name, (views, fusion) in MODELS.items():
             if fusion == "late" or name not in models:
@@ -204,7 +204,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
                    ("early fusion (FLEX)", _MAIN, lambda: predictions[motion, "detected", "FLEX"])]
         for variant, pred in ((variant, predict()) for variant, name, predict in fusions if name in models):
             add(ablations, {"camera_motion": motion, "ablation": "fusion", "variant": variant,
-                            **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else H36M17)})
+                            **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else STRUCTRI17)})
 
     results = {
         "config": dataclasses.asdict(config),
@@ -248,7 +248,7 @@ def _markdown(results: dict) -> str:
 def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int, ...], frames: ArrayLike,
                       title: str = ""):
     """A matplotlib figure of camera-frame poses, front view (x right, y up on the page): one row per view, one
-    column per frame. ``poses`` maps a label to ``(H36M17 joints (views, frames, 17, 3), colour)``."""
+    column per frame. ``poses`` maps a label to ``(STRUCTRI17 joints (views, frames, 17, 3), colour)``."""
     import matplotlib.pyplot as plt
 
     frames = np.asarray(frames)
@@ -258,7 +258,7 @@ def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int,
             ax = axes[row, column]
             for label, (joints, colour) in poses.items():
                 pose = np.asarray(joints)[view, frame]
-                for joint, parent in enumerate(H36M17.parents):
+                for joint, parent in enumerate(STRUCTRI17.parents):
                     if parent >= 0:
                         ax.plot(pose[[joint, parent], 0], -pose[[joint, parent], 1], color=colour, lw=1.5,
                                 label=label if joint == 1 else None)
@@ -282,7 +282,7 @@ def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, p
     from geometry import remap_joints
 
     poses = {"ground truth": (batch.joints[0], "black"),
-             "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17), "tab:red"),
+             "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, STRUCTRI17), "tab:red"),
              "ST, stale calibration": (
                  predictions["dynamic", "detected", "Structural Triangulation, stale (first frame)"][0], "tab:blue")}
     frames = np.linspace(0, config.frames - 1, config.plot_frames).round().astype(int)
