@@ -185,9 +185,12 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--frame must be >= 0")
     import jax
 
-    jax.config.update("jax_enable_x64", True)
+    import geometry
     import mocap
     from geometry import SHELF14, SHELF15
+
+    geometry.disable_faulty_cpu_fusion()
+    jax.config.update("jax_enable_x64", True)
 
     if args.source == "synthetic":
         num_frames = args.frame + 1 if args.num_frames is None else args.num_frames
