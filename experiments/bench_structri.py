@@ -2,7 +2,7 @@
 
 Run: ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= .venv/bin/python -m experiments.bench_structri --json``
 (about 15 s on 2 CPU cores). Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
-NumPy per frame, float64, H36M17, virtual round ring), the speed-up, the max relative difference, the
+NumPy per frame, float64, STRUCTRI17, virtual round ring), the speed-up, the max relative difference, the
 compile times, and the optimistix reference's time per frame.
 """
 
@@ -20,7 +20,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from experiments.bench_geometry import interleaved_times  # noqa: E402
-from geometry import H36M17  # noqa: E402
+from geometry import STRUCTRI17  # noqa: E402
 from structri import constrained_reference, lem_triangulation, structural_triangulation  # noqa: E402
 from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation  # noqa: E402
 
@@ -45,13 +45,14 @@ def make_problem(cfg: Config):
     by_child = {"r_hip": 0.13, "l_hip": 0.13, "r_knee": 0.45, "l_knee": 0.45, "r_ankle": 0.45, "l_ankle": 0.45,
                 "spine": 0.23, "thorax": 0.25, "neck_nose": 0.10, "head": 0.12, "r_shoulder": 0.15, "l_shoulder": 0.15,
                 "r_elbow": 0.28, "l_elbow": 0.28, "r_wrist": 0.25, "l_wrist": 0.25}
-    lengths = np.array([by_child[H36M17.joints[c]] for _, c in H36M17.bones])
-    bone_of = {c: k for k, (_, c) in enumerate(H36M17.bones)}
+    lengths = np.array([by_child[STRUCTRI17.joints[c]] for _, c in STRUCTRI17.bones])
+    bone_of = {c: k for k, (_, c) in enumerate(STRUCTRI17.bones)}
     poses = np.zeros((cfg.frames, 17, 3))
     poses[:, 0] = rng.normal(scale=0.05, size=(cfg.frames, 3))
-    for j in H36M17.topological_order[1:]:
+    for j in STRUCTRI17.topological_order[1:]:
         d = rng.normal(size=(cfg.frames, 3))
-        poses[:, j] = poses[:, H36M17.parents[j]] + lengths[bone_of[j]] * d / np.linalg.norm(d, axis=1, keepdims=True)
+        unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+        poses[:, j] = poses[:, STRUCTRI17.parents[j]] + lengths[bone_of[j]] * unit
     theta = 2 * np.pi * np.arange(cfg.views) / cfg.views
     K = np.array([[900.0, 0.5, 500.0], [0.0, 900.0, 500.0], [0.0, 0.0, 1.0]])
     P = np.stack([K @ np.array([[np.cos(t), 0, np.sin(t), 0], [0, 1, 0, 0], [-np.sin(t), 0, np.cos(t), 2.0]])

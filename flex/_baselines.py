@@ -4,7 +4,7 @@ FLEX is compared with methods that need the extrinsics (paper Sect. 4, ``docs/fl
 triangulation given the true cameras, given cameras whose extrinsics are off by a relative Gaussian error (3 % and
 4 %, "imitating" estimated calibration), and, in the dynamic setting, given a stale calibration of moving cameras.
 :func:`triangulation_baseline` runs such a baseline on a :class:`~flex.Batch` and returns what FLEX is scored on:
-camera-frame, root-relative :data:`geometry.H36M17` joints per view and frame (metres), in the frames of
+camera-frame, root-relative :data:`geometry.STRUCTRI17` joints per view and frame (metres), in the frames of
 ``batch.joints``. :func:`motion_metrics` scores either (or FLEX's FLEX20 output) the same way.
 
 Methods, both weighting each view by the detector's confidence (0 for a missed joint, which drops the view):
@@ -52,7 +52,7 @@ Structural Triangulation solves a frame with an undetermined joint as regularise
 Metrics (:func:`motion_metrics`): MPJPE protocol #1 (root-relative, 17 joints, root included as in
 :func:`geometry.mpjpe_root_relative`, mm), acceleration error (:func:`geometry.acceleration_error`, second
 differences per frame, mm/frame^2) and MBLS (:func:`geometry.mbls`, the bone-length standard deviation over time
-on the H36M17 bones, mm), each per sequence and view, then averaged over both.
+on the STRUCTRI17 bones, mm), each per sequence and view, then averaged over both.
 """
 
 from __future__ import annotations
@@ -67,13 +67,13 @@ from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
 import geometry
 import structri
-from geometry import FLEX20, H36M17, Camera, Skeleton
+from geometry import FLEX20, STRUCTRI17, Camera, Skeleton
 
 from ._data import Batch
 
 __all__ = ["MotionMetrics", "baseline_cameras", "motion_metrics", "triangulation_baseline"]
 
-_ROOT = H36M17.index("mid_hip")
+_ROOT = STRUCTRI17.index("mid_hip")
 _METHODS = ("dlt", "structural")
 _CALIBRATIONS = ("exact", "perturbed", "static")
 _FRAMES = ("true", "calibration")
@@ -145,7 +145,7 @@ def _structural(
     weights: Float[Array, "frames views 17"], n_steps: int,
 ) -> tuple[Float[Array, "frames 17 3"], Bool[Array, "frames 17"]]:
     """ST + SCA of one sequence with its own (median) bone lengths, world metres, and the joints seen in two views."""
-    per_frame = jax.vmap(lambda P_t, x_t, w_t: structri.estimate_bone_lengths(x_t[None], P_t, H36M17, w_t[None]))(
+    per_frame = jax.vmap(lambda P_t, x_t, w_t: structri.estimate_bone_lengths(x_t[None], P_t, STRUCTRI17, w_t[None]))(
         P, points, weights)
     # A frame estimate_bone_lengths cannot use gives zeros. When no frame is usable, every frame has an undetermined
     # joint and ST returns LS, so the zero lengths are never applied.
@@ -153,7 +153,7 @@ def _structural(
     lengths = jnp.nan_to_num(jnp.nanmedian(jnp.where(used[:, None], per_frame, jnp.nan), axis=0), nan=0.0)
     # Per frame (ST is per frame anyway): structri's projection_matrices is annotated for one rig, so per-frame
     # projection matrices fail the runtime shape check although the solver supports them.
-    pose = jax.vmap(lambda P_t, x_t, w_t: structri.structural_triangulation(x_t, P_t, lengths, H36M17, w_t, n_steps)
+    pose = jax.vmap(lambda P_t, x_t, w_t: structri.structural_triangulation(x_t, P_t, lengths, STRUCTRI17, w_t, n_steps)
                     .pose)(P, points, weights)
     return pose, jnp.sum(weights > 0, axis=1) >= 2
 
@@ -187,7 +187,7 @@ def triangulation_baseline(
     frame: Literal["true", "calibration"] = "true",
     n_steps: int = 3,
 ) -> Float[Array, "batch views frames 17 3"]:
-    """A triangulation baseline's camera-frame, root-relative H36M17 joints (metres), like ``batch.joints``.
+    """A triangulation baseline's camera-frame, root-relative STRUCTRI17 joints (metres), like ``batch.joints``.
 
     Args:
         batch: :func:`~flex.make_batch`'s detections (``points_2d``, ``confidences``) and true ``cameras``
@@ -208,9 +208,9 @@ def triangulation_baseline(
         raise ValueError(f"frame must be one of {_FRAMES}, got {frame!r}")
     batch_size, views, frames = _check_cameras(batch.cameras)
     points, weights = jnp.asarray(batch.points_2d), jnp.asarray(batch.confidences)
-    if points.shape != (batch_size, views, frames, H36M17.num_joints, 2) or weights.shape != points.shape[:-1]:
+    if points.shape != (batch_size, views, frames, STRUCTRI17.num_joints, 2) or weights.shape != points.shape[:-1]:
         raise ValueError(f"points_2d {points.shape} and confidences {weights.shape} must be "
-                         f"{(batch_size, views, frames, H36M17.num_joints)} (+ (2,)) like the cameras")
+                         f"{(batch_size, views, frames, STRUCTRI17.num_joints)} (+ (2,)) like the cameras")
     if views < 2:
         raise ValueError(f"triangulation needs at least 2 views, got {views}")
     if not isinstance(batch.cameras.dist, jax.core.Tracer) and np.any(np.asarray(batch.cameras.dist) != 0):
@@ -228,31 +228,31 @@ class MotionMetrics(NamedTuple):
     acceleration_error: Float[Array, ""]
     """Mean joint acceleration error, mm/frame^2 (multiply by fps^2 for mm/s^2)."""
     mbls: Float[Array, ""]
-    """Mean bone-length standard deviation over time of the prediction (H36M17 bones), mm."""
+    """Mean bone-length standard deviation over time of the prediction (STRUCTRI17 bones), mm."""
 
 
 def motion_metrics(
     pred: Float[ArrayLike, "batch views frames joints 3"],
     gt: Float[ArrayLike, "batch views frames 17 3"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
 ) -> MotionMetrics:
     """:class:`MotionMetrics` of camera-frame sequences in metres (``gt`` like ``batch.joints``).
 
-    ``pred`` is in ``skeleton``: :data:`geometry.H36M17`, or :data:`geometry.FLEX20` (FLEX's
+    ``pred`` is in ``skeleton``: :data:`geometry.STRUCTRI17`, or :data:`geometry.FLEX20` (FLEX's
     ``joints_relative``), whose duplicates are dropped (spec section 7: the 17-joint protocol). Needs 3 frames.
     """
-    if skeleton not in (H36M17, FLEX20):
-        raise ValueError(f"skeleton must be H36M17 or FLEX20, got {skeleton.name}")
+    if skeleton not in (STRUCTRI17, FLEX20):
+        raise ValueError(f"skeleton must be STRUCTRI17 or FLEX20, got {skeleton.name}")
     pred, gt = jnp.asarray(pred), jnp.asarray(gt)
     expected = gt.shape[:3] + (skeleton.num_joints, 3)
-    if gt.ndim != 5 or gt.shape[3:] != (H36M17.num_joints, 3) or pred.shape != expected:
+    if gt.ndim != 5 or gt.shape[3:] != (STRUCTRI17.num_joints, 3) or pred.shape != expected:
         raise ValueError(f"need gt (batch, views, frames, 17, 3) and pred (batch, views, frames, "
                          f"{skeleton.num_joints}, 3) in {skeleton.name}, got gt {gt.shape} and pred {pred.shape}")
     if gt.shape[2] < 3:
         raise ValueError(f"the acceleration error needs at least 3 frames, got {gt.shape[2]}")
-    pred = geometry.remap_joints(pred, skeleton, H36M17)
+    pred = geometry.remap_joints(pred, skeleton, STRUCTRI17)
     return MotionMetrics(
         mpjpe=1000.0 * jnp.mean(geometry.mpjpe_root_relative(pred, gt, _ROOT)),
         acceleration_error=1000.0 * jnp.mean(geometry.acceleration_error(pred, gt)),
-        mbls=1000.0 * jnp.mean(geometry.mbls(pred, H36M17)),
+        mbls=1000.0 * jnp.mean(geometry.mbls(pred, STRUCTRI17)),
     )

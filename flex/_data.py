@@ -15,11 +15,11 @@ A sample (:func:`make_sample`) takes ``frames`` consecutive frames of one person
   apparent size, occlusion, left/right swaps, misses, confidences) runs on the BODY25 joints of every person of
   the clip (the two-person clips' partner occludes the person: mutual occlusion), each view
   in its own camera frame (an identity-extrinsics camera, so moving cameras cost nothing extra). Each
-  :data:`geometry.H36M17` joint then gets the detector's error of its BODY25 counterpart (the mean error and mean
+  :data:`geometry.STRUCTRI17` joint then gets the detector's error of its BODY25 counterpart (the mean error and mean
   confidence of several for the spine, neck and head, which BODY25 lacks), added to its exact projection;
   unreported joints have confidence 0.
 
-The ground truth is what the losses need: per-view camera-frame H36M17 joints relative to the root, the root in
+The ground truth is what the losses need: per-view camera-frame STRUCTRI17 joints relative to the root, the root in
 each view's normalised camera (:mod:`flex._model`; from the input's own normalisation, so no calibration is
 needed at test time), the symmetric bone lengths, foot contacts, and the "real" rotations for the
 discriminator: FLEX20 local rotations from the positions (:func:`local_rotations`) and each view's root rotation.
@@ -42,7 +42,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import geometry
 import mocap
-from geometry import BODY25, FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, H36M17, Camera
+from geometry import BODY25, FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, STRUCTRI17, Camera
 
 from ._normalise import normalise_2d
 
@@ -51,21 +51,21 @@ __all__ = [
     "symmetric_bone_lengths",
 ]
 
-_ROOT = H36M17.index("mid_hip")
-_FEET = (H36M17.index("r_ankle"), H36M17.index("l_ankle"))
+_ROOT = STRUCTRI17.index("mid_hip")
+_FEET = (STRUCTRI17.index("r_ankle"), STRUCTRI17.index("l_ankle"))
 _BODY25_PROXIES: dict[str, tuple[str, ...]] = {
     "spine": ("mid_hip", "neck"),
     "thorax": ("neck",),
     "neck_nose": ("nose", "l_ear", "r_ear"),
     "head": ("nose", "l_eye", "r_eye", "l_ear", "r_ear"),
 }
-"""BODY25 joints whose detection error an H36M17 joint without a BODY25 namesake takes (mean over the reported)."""
+"""BODY25 joints whose detection error an STRUCTRI17 joint without a BODY25 namesake takes (mean over the reported)."""
 
 
 def _proxy_matrix() -> np.ndarray:
-    """(17, 25) 0/1 map: entry (k, b) is 1 when BODY25 joint b gives its detection error to H36M17 joint k."""
-    matrix = np.zeros((H36M17.num_joints, BODY25.num_joints))
-    for k, name in enumerate(H36M17.joints):
+    """(17, 25) 0/1 map: entry (k, b) is 1 when BODY25 joint b gives its detection error to STRUCTRI17 joint k."""
+    matrix = np.zeros((STRUCTRI17.num_joints, BODY25.num_joints))
+    for k, name in enumerate(STRUCTRI17.joints):
         for proxy in _BODY25_PROXIES.get(name, (name,)):
             matrix[k, BODY25.index(proxy)] = 1.0
     return matrix
@@ -127,11 +127,11 @@ class Batch(NamedTuple):
     """Model input and ground truth (leading ``batch`` axis from :func:`make_batch`; none from :func:`make_sample`)."""
 
     points_2d: Float[Array, "batch views frames 17 2"]
-    """Detected H36M17 joints, pixels (0 where missing)."""
+    """Detected STRUCTRI17 joints, pixels (0 where missing)."""
     confidences: Float[Array, "batch views frames 17"]
     """Detector confidences in [0, 1], 0 where missing."""
     joints: Float[Array, "batch views frames 17 3"]
-    """Camera-frame H36M17 joints relative to the root (metres): L_P's target."""
+    """Camera-frame STRUCTRI17 joints relative to the root (metres): L_P's target."""
     root_position: Float[Array, "batch views frames 3"]
     """The root in each view's normalised camera (``(x d, y d, d)``, metres; :mod:`flex._model`): L_R, L_FC."""
     bone_lengths: Float[Array, "batch 10"]
@@ -278,7 +278,7 @@ def _cameras(rng: np.random.Generator, config: DataConfig, root: np.ndarray, fps
 
 def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray, person: int, h36m: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per view: ``person``'s detected H36M17 pixels (views, T, 17, 2) and confidences (views, T, 17), and the
+    """Per view: ``person``'s detected STRUCTRI17 pixels (views, T, 17, 2) and confidences (views, T, 17), and the
     exact projections (views, T, 17, 2), from the detector model run in each view's camera frame on all the
     clip's people ``body25`` (T, people, 25, 3), so that the others occlude the person."""
     points, confidences, exact = [], [], []
@@ -326,8 +326,8 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
     clip = _clip(config.clip_names[int(rng.integers(len(config.clip_names)))])
     person = int(rng.integers(clip.num_people))
     window = _window(rng, clip.num_frames, config.frames)
-    h36m, body25 = clip.h36m17[person].copy(), np.moveaxis(clip.body25[:, window], 0, 1)  # (T, people, 25, 3)
-    h36m[:, _ROOT] = 0.5 * (h36m[:, H36M17.index("l_hip")] + h36m[:, H36M17.index("r_hip")])
+    h36m, body25 = clip.structri17[person].copy(), np.moveaxis(clip.body25[:, window], 0, 1)  # (T, people, 25, 3)
+    h36m[:, _ROOT] = 0.5 * (h36m[:, STRUCTRI17.index("l_hip")] + h36m[:, STRUCTRI17.index("r_hip")])
     lowest = h36m[:, _FEET, 2].min()
     h36m = h36m[window]
 
@@ -342,7 +342,7 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
     velocity = np.gradient(h36m[:, _FEET], axis=0) * clip.fps  # (T, 2, 3)
     contacts = (np.linalg.norm(velocity, axis=-1) < config.contact_speed) & (
         h36m[:, _FEET, 2] < lowest + config.contact_height)
-    flex20 = np.asarray(geometry.flex20_from_h36m17(h36m))
+    flex20 = np.asarray(geometry.flex20_from_structri17(h36m))
     local = local_rotations(flex20, rest_pose)
     rotations = np.asarray(sign_continuous(geometry.matrix_to_quaternion(local[:, np.asarray(FLEX20_ROTATING)])))
     root_world = np.asarray(local[:, 0])

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import geometry
-from geometry import FLEX20, H36M17
+from geometry import FLEX20, STRUCTRI17
 
 from ._data import Batch
 from ._model import Discriminator, FlexOutputs
@@ -66,8 +66,8 @@ def _scaled(v: Float[Array, "batch *rest"], batch: Batch) -> Float[Array, "batch
 
 
 def position_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
-    """L_P (Eq. 3): mean squared distance (alpha^2) of the root-relative camera-frame H36M17 joints, all views."""
-    predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, H36M17)
+    """L_P (Eq. 3): mean squared distance (alpha^2) of the root-relative camera-frame STRUCTRI17 joints, all views."""
+    predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, STRUCTRI17)
     return jnp.mean(_squared_norm(_scaled(predicted - batch.joints.astype(predicted.dtype), batch)))
 
 
@@ -91,7 +91,7 @@ def contact_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
 def contact_velocity_loss(outputs: FlexOutputs, batch: Batch) -> Float[Array, ""]:
     """L_FC (Eq. 8): ``f_i |Delta_t foot_i - Delta_t foot_i^gt|^2`` (alpha^2 per frame), ground-truth contacts ``f``."""
     feet = outputs.joints[..., _FEET, :]  # (B, K, T, 2, 3)
-    true_feet = (batch.root_position[..., None, :] + geometry.flex20_from_h36m17(batch.joints)[..., _FEET, :])
+    true_feet = (batch.root_position[..., None, :] + geometry.flex20_from_structri17(batch.joints)[..., _FEET, :])
     velocity = jnp.diff(feet, axis=2) - jnp.diff(true_feet.astype(feet.dtype), axis=2)
     contact = batch.contacts[:, None, 1:, :].astype(feet.dtype)  # (B, 1, T - 1, 2)
     return jnp.mean(contact * _squared_norm(_scaled(velocity, batch)))

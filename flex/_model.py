@@ -1,6 +1,6 @@
 """The FLEX network (Gordon et al., ECCV 2022, Sec. 3.1, App. D, Table 6) in Flax NNX.
 
-Input: K views x T frames of 2D joints in pixels (:data:`geometry.H36M17` order) with confidences, and nothing
+Input: K views x T frames of 2D joints in pixels (:data:`geometry.STRUCTRI17` order) with confidences, and nothing
 else: no intrinsic or extrinsic parameters. :func:`~flex.normalise_2d` turns each view into calibration-free
 features ``V`` (``3J`` channels per view and frame). Then (Fig. 3, 14, 15):
 
@@ -53,7 +53,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import geometry
 import training
-from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, H36M17
+from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, STRUCTRI17
 
 from . import _data
 from ._normalise import normalise_2d
@@ -65,7 +65,7 @@ __all__ = [
 
 NUM_ROTATING = len(FLEX20_ROTATING)
 NUM_BONES = len(FLEX20_BONES)
-INPUT_ROOT = H36M17.index("mid_hip")
+INPUT_ROOT = STRUCTRI17.index("mid_hip")
 
 _REFERENCE_BONES_M = (0.13, 0.44, 0.44, 0.23, 0.25, 0.12, 0.12, 0.15, 0.28, 0.25)
 """Typical adult lengths of :data:`geometry.FLEX20_BONES` (metres, about Human3.6M's means). Only the origin of
@@ -119,7 +119,7 @@ class FlexConfig:
     batch_norm_momentum: float = 0.9
     """Decay of the running averages (PyTorch's default momentum 0.1)."""
     leaky_slope: float = 0.01
-    input_joints: int = H36M17.num_joints
+    input_joints: int = STRUCTRI17.num_joints
     fusion: Literal["early", "late"] = "early"
     """Where F_Q fuses the views (Table 5c): "early" is FLEX (multi-view convolution, then cross-view attention
     before E_Q); "late" processes each view alone (view kernel 1, E_Q's temporal convolutions per view) and fuses

@@ -38,7 +38,7 @@ from jax.typing import ArrayLike
 import geometry
 import mocap
 import training
-from geometry import FLEX20, H36M17
+from geometry import FLEX20, STRUCTRI17
 
 from ._data import Batch, DataConfig, make_sample
 from ._losses import LossWeights, discriminator_loss, generator_loss
@@ -208,9 +208,9 @@ def train_step(
 def _validation_errors(graphdef: nnx.GraphDef, params: Any, rest: Any, batch: Batch) -> jax.Array:
     """Per sample and view the MPJPE (metres, protocol #1, the 17 H36M joints) of the deterministic model."""
     outputs = nnx.merge(graphdef, params, rest)(batch.points_2d, batch.confidences)
-    predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, H36M17)
+    predicted = geometry.remap_joints(outputs.joints_relative, FLEX20, STRUCTRI17)
     return jnp.mean(geometry.mpjpe_root_relative(predicted, batch.joints.astype(predicted.dtype),
-                                                 H36M17.index("mid_hip")), axis=-1)
+                                                 STRUCTRI17.index("mid_hip")), axis=-1)
 
 
 def _validate(graphdef, state: TrainState, pool: Batch, batch_size: int) -> dict[str, float]:

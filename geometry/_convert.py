@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Shaped
 
-from ._skeleton import FLEX20, FLEX20_DUPLICATE_OF, H36M17, SHELF15, Skeleton
+from ._skeleton import FLEX20, FLEX20_DUPLICATE_OF, SHELF15, STRUCTRI17, Skeleton
 
-__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "flex20_from_h36m17", "shelf15_conversion_matrix", "to_shelf15",
-           "to_shelf15_validity"]
+__all__ = ["HeadRule", "HEAD_RULES", "remap_joints", "flex20_from_structri17", "shelf15_conversion_matrix",
+           "to_shelf15", "to_shelf15_validity"]
 
 HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose", "h36m"]
 """How Shelf15 joints 12 (bottom of head) and 13 (top of head) are derived (metres, world z up).
@@ -46,7 +46,7 @@ HeadRule = Literal["4da", "voxelpose_shelf", "voxelpose_campus", "mvpose", "h36m
 ``"mvpose"``
     MVPose ``coco2shelf3D`` (both datasets): the VoxelPose Shelf rule without the final 0.75/0.25 blend.
 ``"h36m"``
-    For ground truth on the H36M17 joint set (our synthetic scenes): ``s12`` = H36M's "Neck/Nose"
+    For ground truth on the STRUCTRI17 joint set (our synthetic scenes): ``s12`` = H36M's "Neck/Nose"
     joint, ``s13`` = its head top, and ``s14`` = the centre of the hips as in Shelf's ground truth
     (H36M's pelvis joint sits higher). Independent of the face keypoints detectors see.
 
@@ -59,7 +59,7 @@ not meaningful for y-up data.
 
 HEAD_RULES: tuple[str, ...] = typing.get_args(HeadRule)
 
-_DEFAULT_HEAD_RULE: dict[str, str] = {"BODY25": "4da", "SKEL19": "4da", "H36M17": "h36m"}
+_DEFAULT_HEAD_RULE: dict[str, str] = {"BODY25": "4da", "SKEL19": "4da", "STRUCTRI17": "h36m"}
 """Source skeletons with a default head rule (their own method's). COCO17 has none: VoxelPose, MVPose
 and JCSAT all score COCO17 predictions, each with its own rule, so the caller must name one."""
 
@@ -82,7 +82,7 @@ def remap_joints(
     """Reorder joints of ``source`` into ``target`` by joint name (any trailing channel count C).
 
     Names are matched literally; they are one vocabulary across formats, but datasets place some
-    joints differently (H36M17's ``neck`` is its "Neck/Nose" point, SMPL24 hips sit inside the pelvis),
+    joints differently (STRUCTRI17's ``neck`` is its "Neck/Nose" point, SMPL24 hips sit inside the pelvis),
     so a remap across datasets is exact only for the joints whose definitions agree. For a validity
     mask ``(*b, J)`` pass ``mask[..., None]`` and take ``[..., 0]``.
 
@@ -97,18 +97,18 @@ def remap_joints(
     return jnp.take(jnp.asarray(points), index, axis=-2)
 
 
-_FLEX20_FROM_H36M17 = np.array(
-    [H36M17.index(FLEX20_DUPLICATE_OF.get(name, name)) for name in FLEX20.joints], dtype=np.int32)
+_FLEX20_FROM_STRUCTRI17 = np.array(
+    [STRUCTRI17.index(FLEX20_DUPLICATE_OF.get(name, name)) for name in FLEX20.joints], dtype=np.int32)
 
 
 @jax.jit
-def flex20_from_h36m17(points: Shaped[ArrayLike, "*b 17 C"]) -> Shaped[Array, "*b 20 C"]:
-    """:data:`~geometry.H36M17` joints in :data:`~geometry.FLEX20` order, the duplicates copied from the joints
+def flex20_from_structri17(points: Shaped[ArrayLike, "*b 17 C"]) -> Shaped[Array, "*b 20 C"]:
+    """:data:`~geometry.STRUCTRI17` joints in :data:`~geometry.FLEX20` order, the duplicates copied from the joints
     they coincide with (:data:`~geometry.FLEX20_DUPLICATE_OF`); any trailing channel count C.
 
-    The inverse, dropping the duplicates, is ``remap_joints(points, FLEX20, H36M17)``."""
-    _check_points(points, H36M17)
-    return jnp.take(jnp.asarray(points), _FLEX20_FROM_H36M17, axis=-2)
+    The inverse, dropping the duplicates, is ``remap_joints(points, FLEX20, STRUCTRI17)``."""
+    _check_points(points, STRUCTRI17)
+    return jnp.take(jnp.asarray(points), _FLEX20_FROM_STRUCTRI17, axis=-2)
 
 
 class _Shelf15Table(NamedTuple):

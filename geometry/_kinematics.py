@@ -7,7 +7,7 @@ expressed in the PARENT's frame, and its local rotation turns its own frame rela
     pos[j]      = pos[parent(j)] + global_R[parent(j)] @ offset[j]
 
 The root's position is given directly and its offset is ignored. Parents may have larger indices
-than their children (H36M17), so joints are visited in :attr:`Skeleton.topological_order`.
+than their children (STRUCTRI17), so joints are visited in :attr:`Skeleton.topological_order`.
 
 Bone vectors follow :attr:`Skeleton.bones`: bone k is ``x_child - x_parent`` for the k-th
 (parent, child) pair in increasing child index; with the root at index 0 bone k ends at joint k + 1
@@ -143,7 +143,7 @@ def joints_to_bones_matrix(skeleton: Skeleton) -> Float[np.ndarray, "dim dim"]:
 
     ``X`` stacks the joints in index order, three rows per joint (``X[3j:3j+3] = x_j``); the output
     stacks the root position then the bone vectors in ``skeleton.bones`` order. For a root at index 0
-    (H36M17) this is Structural Triangulation's ``conv_J2B``: block k >= 1 is the bone ending at joint k."""
+    (STRUCTRI17) this is Structural Triangulation's ``conv_J2B``: block k >= 1 is the bone ending at joint k."""
     parent, child = _bone_endpoints(skeleton)
     small = np.zeros((skeleton.num_joints, skeleton.num_joints))
     small[0, skeleton.root] = 1.0

@@ -2,7 +2,7 @@
 
 Joint names follow one vocabulary across formats (``l_``/``r_`` prefixes for the person's left and
 right), so mirror pairs are derived from the names rather than listed by hand. Parents describe a tree
-rooted at the joint whose parent is -1; a parent may have a larger index than its child (H36M17 in the
+rooted at the joint whose parent is -1; a parent may have a larger index than its child (STRUCTRI17 in the
 Structural Triangulation order), so code must use :attr:`Skeleton.topological_order`, never index order.
 """
 
@@ -72,7 +72,7 @@ class Skeleton:
     def bones(self) -> tuple[tuple[int, int], ...]:
         """(parent, child) pairs, one per non-root joint, in increasing child index.
 
-        With the root at index 0 (H36M17, SMPL24, SKEL19), bone k ends at joint k + 1, the
+        With the root at index 0 (STRUCTRI17, SMPL24, SKEL19), bone k ends at joint k + 1, the
         convention of Structural Triangulation's bone vector."""
         return tuple((p, c) for c, p in enumerate(self.parents) if p >= 0)
 
@@ -187,8 +187,8 @@ SKEL19 = _tree(
 )
 """4D-association's 19-joint skeleton (joint 0 is the pelvis)."""
 
-H36M17 = _tree(
-    "H36M17",
+STRUCTRI17 = _tree(
+    "STRUCTRI17",
     ("mid_hip", "r_knee", "r_hip", "l_hip", "l_knee", "l_ankle", "r_ankle", "spine", "thorax",
      "head", "r_wrist", "r_elbow", "r_shoulder", "l_shoulder", "l_elbow", "l_wrist", "neck_nose"),
     {"mid_hip": None, "r_hip": "mid_hip", "l_hip": "mid_hip", "spine": "mid_hip",
@@ -196,10 +196,15 @@ H36M17 = _tree(
      "l_shoulder": "thorax", **_ARMS_LEGS},
     pcp_parts=_LIMB_PARTS,
 )
-"""Human3.6M 17 joints in the Structural Triangulation order: root first, bone k ends at joint k + 1
-(parents ``[-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]``). ``neck_nose`` is H36M's
-"Neck/Nose" point (above OpenPose's neck, which is nearer H36M's ``thorax``), and ``l_ankle``/``r_ankle``
-its "Foot" joints."""
+"""Human3.6M's 17 joints in Structural Triangulation's order (Chen et al., ECCV 2022),
+NOT in Human3.6M's own order: root first, and bone k ends at joint k + 1 (parents
+``[-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]``), so a parent may come after its child.
+Human3.6M's own order is pelvis, r_hip, r_knee, r_foot, l_hip, l_knee, l_foot, spine, thorax, neck/nose, head,
+l_shoulder, l_elbow, l_wrist, r_shoulder, r_elbow, r_wrist; only ``mid_hip`` (index 0), ``spine`` (7) and
+``thorax`` (8) sit at the same indices, so arrays in Human3.6M's order must be reordered by joint name
+before they are used with this skeleton. ``neck_nose`` is
+H36M's "Neck/Nose" point (above OpenPose's neck, which is nearer H36M's ``thorax``), and
+``l_ankle``/``r_ankle`` its "Foot" joints."""
 
 SMPL24 = _tree(
     "SMPL24",
@@ -233,8 +238,8 @@ duplicates that let the bones next to the root and the neck turn independently. 
 ``mid_hip`` (zero offset) and carries the spine; ``l_thorax`` and ``r_thorax`` sit on ``thorax`` (children of
 ``spine`` with the thorax's offset) and carry the arms, so the shoulders move independently of the neck.
 :data:`FLEX20_DUPLICATE_OF` names the joint each duplicate coincides with. The other joints have their
-:data:`H36M17` names, so ``geometry.remap_joints(points, FLEX20, H36M17)`` drops the duplicates (the
-17-joint MPJPE) and :func:`~geometry.flex20_from_h36m17` adds them. ``mid_hip`` is the Human3.6M pelvis,
+:data:`STRUCTRI17` names, so ``geometry.remap_joints(points, FLEX20, STRUCTRI17)`` drops the duplicates (the
+17-joint MPJPE) and :func:`~geometry.flex20_from_structri17` adds them. ``mid_hip`` is the Human3.6M pelvis,
 the centre of the hips in FLEX's rest pose (hips at +-x)."""
 
 FLEX20_DUPLICATE_OF: dict[str, str] = {"spine_base": "mid_hip", "l_thorax": "thorax", "r_thorax": "thorax"}
@@ -274,10 +279,10 @@ bone, arms included, up; ``"tpose"`` points the shoulders and arms sideways. Zer
 ``spine_base``."""
 
 SKELETONS: dict[str, Skeleton] = {
-    s.name: s for s in (BODY25, COCO17, SHELF14, SHELF15, SKEL19, H36M17, SMPL24, FLEX20)}
+    s.name: s for s in (BODY25, COCO17, SHELF14, SHELF15, SKEL19, STRUCTRI17, SMPL24, FLEX20)}
 
 __all__ = [
-    "Skeleton", "SKELETONS", "BODY25", "COCO17", "SHELF14", "SHELF15", "SKEL19", "H36M17", "SMPL24", "FLEX20",
+    "Skeleton", "SKELETONS", "BODY25", "COCO17", "SHELF14", "SHELF15", "SKEL19", "STRUCTRI17", "SMPL24", "FLEX20",
     "FLEX20_DUPLICATE_OF", "FLEX20_BONES", "FLEX20_BONE_OF_JOINT", "FLEX20_END_EFFECTORS", "FLEX20_ROTATING",
     "FLEX20_REST_DIRECTIONS",
 ]

@@ -83,7 +83,7 @@ class DataConfig:
     cluster: ClusterConfig = ClusterConfig()
     head_rule: geometry.HeadRule = "h36m"
     """How the labels' head joints (Shelf15 12 and 13) are made; the other joints do not depend on it.
-    ``"h36m"``: from the mocap skeleton's own neck and head (H36M17); any other rule of
+    ``"h36m"``: from the mocap skeleton's own neck and head (STRUCTRI17); any other rule of
     :func:`geometry.to_shelf15`: from the BODY25 ears, shoulders and neck, e.g. ``"4da"``, the rule of JCSAT's
     official code (its auxiliary "morph" target) and of the 4D-association output, whose head top lies
     further in front of the shoulders, as Shelf's annotations do."""

@@ -1,16 +1,97 @@
 """Motion sources, multi-view scene synthesis with a 2D detector model, a mesh rasteriser, and real-dataset loaders."""
 
-from ._detections import *  # noqa: F403
-from ._shelf_campus import *  # noqa: F403
-from ._predictions import *  # noqa: F403
-from ._evaluation import *  # noqa: F403
-from ._motion import *  # noqa: F403
-from ._asf_amc import *  # noqa: F403
-from ._bvh import *  # noqa: F403
-from ._clips import *  # noqa: F403
-from ._procedural import *  # noqa: F403
-from ._detector import *  # noqa: F403
-from ._scene import *  # noqa: F403
-from ._render import *  # noqa: F403
-from ._retarget import *  # noqa: F403
-from ._video import *  # noqa: F403
+from importlib.metadata import version as _version
+
+from ._asf_amc import AsfSkeleton as AsfSkeleton
+from ._asf_amc import read_amc as read_amc
+from ._asf_amc import read_asf as read_asf
+from ._asf_amc import read_asf_amc as read_asf_amc
+from ._bvh import CMU_METRES_PER_UNIT as CMU_METRES_PER_UNIT
+from ._bvh import SALSA_METRES_PER_UNIT as SALSA_METRES_PER_UNIT
+from ._bvh import read_bvh as read_bvh
+from ._bvh import write_bvh as write_bvh
+from ._clips import ASSETS as ASSETS
+from ._clips import CLIP_SOURCES as CLIP_SOURCES
+from ._clips import Clip as Clip
+from ._clips import clip_from_motions as clip_from_motions
+from ._clips import list_clips as list_clips
+from ._clips import load_clip as load_clip
+from ._clips import read_clip_sources as read_clip_sources
+from ._clips import save_clip as save_clip
+from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS
+from ._detections import Detections as Detections
+from ._detections import PaddedDetections as PaddedDetections
+from ._detections import oracle_keypoints as oracle_keypoints
+from ._detections import pad_detections as pad_detections
+from ._detector import BODY25_CAPSULES as BODY25_CAPSULES
+from ._detector import Capsule as Capsule
+from ._detector import DetectorConfig as DetectorConfig
+from ._detector import DetectorEvents as DetectorEvents
+from ._detector import PERFECT_DETECTOR as PERFECT_DETECTOR
+from ._detector import SWAP_GROUPS as SWAP_GROUPS
+from ._detector import ViewGeometry as ViewGeometry
+from ._detector import detect as detect
+from ._detector import detect_with_events as detect_with_events
+from ._detector import view_geometry as view_geometry
+from ._evaluation import ActorScore as ActorScore
+from ._evaluation import EVALUATION_PROTOCOLS as EVALUATION_PROTOCOLS
+from ._evaluation import EvaluationGroundTruth as EvaluationGroundTruth
+from ._evaluation import EvaluationProtocol as EvaluationProtocol
+from ._evaluation import JCSAT_MATCH_GATE_M as JCSAT_MATCH_GATE_M
+from ._evaluation import JOINT_PRECISION_THRESHOLD_M as JOINT_PRECISION_THRESHOLD_M
+from ._evaluation import PCP_GROUPS as PCP_GROUPS
+from ._evaluation import ShelfScore as ShelfScore
+from ._evaluation import VOXELPOSE_RECALL_THRESHOLD_M as VOXELPOSE_RECALL_THRESHOLD_M
+from ._evaluation import evaluate_shelf as evaluate_shelf
+from ._evaluation import format_shelf_scores as format_shelf_scores
+from ._evaluation import ground_truth_from_shelf14 as ground_truth_from_shelf14
+from ._evaluation import match_predictions as match_predictions
+from ._evaluation import shelf_evaluation_ground_truth as shelf_evaluation_ground_truth
+from ._motion import Motion as Motion
+from ._motion import Y_UP_TO_Z_UP as Y_UP_TO_Z_UP
+from ._motion import build_motion as build_motion
+from ._motion import euler_matrices as euler_matrices
+from ._motion import motion_joint_positions as motion_joint_positions
+from ._motion import resample_motion as resample_motion
+from ._predictions import PREDICTIONS_HEADER as PREDICTIONS_HEADER
+from ._predictions import PosePredictions as PosePredictions
+from ._predictions import predictions_from_4dassoc as predictions_from_4dassoc
+from ._predictions import read_predictions as read_predictions
+from ._predictions import suppress_duplicates as suppress_duplicates
+from ._predictions import write_predictions as write_predictions
+from ._procedural import procedural_clip as procedural_clip
+from ._procedural import procedural_motion as procedural_motion
+from ._render import Raster as Raster
+from ._render import Rendering as Rendering
+from ._render import face_parts as face_parts
+from ._render import rasterise as rasterise
+from ._render import render_people as render_people
+from ._retarget import BodyMotion as BodyMotion
+from ._retarget import retarget_clip as retarget_clip
+from ._scene import MotionGroup as MotionGroup
+from ._scene import Scene as Scene
+from ._scene import ScenePlacement as ScenePlacement
+from ._scene import capture_area as capture_area
+from ._scene import compose_scene as compose_scene
+from ._scene import motion_group as motion_group
+from ._scene import place_groups as place_groups
+from ._scene import synthesize_scene as synthesize_scene
+from ._shelf_campus import FOUR_D_ASSOCIATION_PAF_EXPONENT as FOUR_D_ASSOCIATION_PAF_EXPONENT
+from ._shelf_campus import PersonSkeleton as PersonSkeleton
+from ._shelf_campus import SHELF_DETECTION_FIRST_FRAME as SHELF_DETECTION_FIRST_FRAME
+from ._shelf_campus import SHELF_NUM_VIEWS as SHELF_NUM_VIEWS
+from ._shelf_campus import campus_cameras as campus_cameras
+from ._shelf_campus import campus_test_frames as campus_test_frames
+from ._shelf_campus import load_4dassoc_detections as load_4dassoc_detections
+from ._shelf_campus import load_4dassoc_skeletons as load_4dassoc_skeletons
+from ._shelf_campus import load_shelf_detections as load_shelf_detections
+from ._shelf_campus import load_shelf_ground_truth as load_shelf_ground_truth
+from ._shelf_campus import shelf_cameras as shelf_cameras
+from ._shelf_campus import shelf_test_frames as shelf_test_frames
+from ._video import Video as Video
+from ._video import VideoConfig as VideoConfig
+from ._video import flip_video as flip_video
+from ._video import jitter_boxes as jitter_boxes
+from ._video import synthesise_video as synthesise_video
+
+__version__ = _version("mvmocap")

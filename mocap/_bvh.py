@@ -16,9 +16,11 @@ y-up BVH that :func:`read_bvh`, with the same ``metres_per_unit``, reads back to
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from jaxtyping import ArrayLike, Float
@@ -52,93 +54,149 @@ def read_bvh(path: str | Path, metres_per_unit: float, fps: float | None = None,
         lines = path.read_text(encoding="latin-1").splitlines()
     except OSError as e:
         raise ValueError(f"{path}: cannot read ({e})") from None
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[np.ndarray | None] = []
-    channels: list[tuple[str, ...]] = []
-    stack: list[int] = []
+    hierarchy = _parse_hierarchy(path, lines)
+    num_frames, frame_time_line, frame_time = _parse_motion_header(path, lines, hierarchy.motion_line)
+    if fps is None:
+        fps = _header_fps(path, frame_time_line, frame_time)
+    width = sum(len(c) for c in hierarchy.channels)
+    values = _parse_frames(path, lines, hierarchy.motion_line + 3, num_frames, width)
+    local_rotations, root_positions = _apply_channels(hierarchy, values)
+    offsets = hierarchy.offsets.copy()
+    offsets[0] = 0.0  # the root's offset is in root_positions
+    return build_motion(hierarchy.names, hierarchy.parents, offsets, local_rotations, root_positions, fps,
+                        metres_per_unit, name=name or path.stem)
+
+
+class _Hierarchy(NamedTuple):
+    """The ``HIERARCHY`` section: nodes in file order (depth first), their rest offsets (file units) and
+    lower-case channel names, and the number of the ``MOTION`` line."""
+
+    names: tuple[str, ...]
+    parents: tuple[int, ...]
+    offsets: Float[np.ndarray, "J 3"]
+    channels: tuple[tuple[str, ...], ...]
+    motion_line: int
+
+
+@dataclasses.dataclass
+class _HierarchyParser:
+    """The nodes declared so far, and where the parser is in the nesting of ``{ }`` blocks."""
+
+    path: Path
+    names: list[str] = dataclasses.field(default_factory=list)
+    parents: list[int] = dataclasses.field(default_factory=list)
+    offsets: list[np.ndarray | None] = dataclasses.field(default_factory=list)
+    channels: list[tuple[str, ...]] = dataclasses.field(default_factory=list)
+    stack: list[int] = dataclasses.field(default_factory=list)  # the open blocks, innermost last
     pending: int | None = None  # node declared, waiting for its '{'
+
+    def declare(self, n: int, key: str, tokens: list[str]) -> None:
+        """A ``ROOT``, ``JOINT`` or ``End Site`` line."""
+        if self.pending is not None:
+            raise malformed(self.path, n, "expected '{' after a joint declaration")
+        if key == "ROOT":
+            if self.names:
+                raise malformed(self.path, n, "only one ROOT is supported")
+            if len(tokens) != 2:
+                raise malformed(self.path, n, "ROOT needs one name")
+            parent, node_name = -1, tokens[1]
+        else:
+            if not self.stack:
+                raise malformed(self.path, n, f"{tokens[0]} outside the ROOT block")
+            parent = self.stack[-1]
+            if key == "END":
+                node_name = self.names[parent] + "_end"
+            else:
+                if len(tokens) != 2:
+                    raise malformed(self.path, n, "JOINT needs one name")
+                node_name = tokens[1]
+        if node_name in self.names:
+            raise malformed(self.path, n, f"duplicate joint name {node_name!r}")
+        self.names.append(node_name)
+        self.parents.append(parent)
+        self.offsets.append(None)
+        self.channels.append(())
+        self.pending = len(self.names) - 1
+
+    def open_block(self, n: int) -> None:
+        if self.pending is None:
+            raise malformed(self.path, n, "unexpected '{'")
+        self.stack.append(self.pending)
+        self.pending = None
+
+    def close_block(self, n: int) -> None:
+        if not self.stack:
+            raise malformed(self.path, n, "unbalanced '}'")
+        j = self.stack.pop()
+        if self.offsets[j] is None:
+            raise malformed(self.path, n, f"joint {self.names[j]!r} has no OFFSET")
+
+    def offset(self, n: int, tokens: list[str], raw: str) -> None:
+        if not self.stack or self.pending is not None:
+            raise malformed(self.path, n, "OFFSET outside a joint block")
+        if len(tokens) != 4:
+            raise malformed(self.path, n, f"OFFSET needs 3 numbers, got {len(tokens) - 1}")
+        try:
+            self.offsets[self.stack[-1]] = np.array([float(t) for t in tokens[1:]])
+        except ValueError:
+            raise malformed(self.path, n, f"OFFSET: not a number in {raw.strip()!r}") from None
+
+    def declare_channels(self, n: int, tokens: list[str]) -> None:
+        if not self.stack or self.pending is not None:
+            raise malformed(self.path, n, "CHANNELS outside a joint block")
+        j = self.stack[-1]
+        try:
+            count = int(tokens[1])
+        except (IndexError, ValueError):
+            raise malformed(self.path, n, "CHANNELS needs a count") from None
+        chans = tuple(t.lower() for t in tokens[2:])
+        if count != len(chans):
+            raise malformed(self.path, n, f"CHANNELS says {count} but lists {len(chans)}")
+        unknown = [c for c in chans if c not in _POSITION and c not in _ROTATION]
+        if unknown or len(set(chans)) != len(chans):
+            raise malformed(self.path, n, f"unknown or repeated channels {unknown or chans}")
+        if self.parents[j] != -1 and any(c in _POSITION for c in chans):
+            raise malformed(self.path, n, f"position channels are supported on the root only ({self.names[j]!r})")
+        self.channels[j] = chans
+
+    def finish(self, n: int) -> _Hierarchy:
+        """At the ``MOTION`` line ``n``."""
+        if self.stack or self.pending is not None or not self.names:
+            raise malformed(self.path, n, "MOTION before the hierarchy is complete")
+        return _Hierarchy(tuple(self.names), tuple(self.parents), np.stack(self.offsets), tuple(self.channels), n)
+
+
+def _parse_hierarchy(path: Path, lines: list[str]) -> _Hierarchy:
+    """Read lines up to ``MOTION``: the skeleton's nodes, their offsets and channels."""
+    parser = _HierarchyParser(path)
     n = 0
-    motion_line = None
     for n, raw in enumerate(lines, 1):
         tokens = raw.split()
         if not tokens:
             continue
         key = tokens[0].upper()
-        if key == "HIERARCHY" and not names:
+        if key == "HIERARCHY" and not parser.names:
             continue
         if key in ("ROOT", "JOINT") or (key == "END" and len(tokens) > 1 and tokens[1].upper() == "SITE"):
-            if pending is not None:
-                raise malformed(path, n, "expected '{' after a joint declaration")
-            if key == "ROOT":
-                if names:
-                    raise malformed(path, n, "only one ROOT is supported")
-                if len(tokens) != 2:
-                    raise malformed(path, n, "ROOT needs one name")
-                parent, node_name = -1, tokens[1]
-            else:
-                if not stack:
-                    raise malformed(path, n, f"{tokens[0]} outside the ROOT block")
-                parent = stack[-1]
-                if key == "END":
-                    node_name = names[parent] + "_end"
-                else:
-                    if len(tokens) != 2:
-                        raise malformed(path, n, "JOINT needs one name")
-                    node_name = tokens[1]
-            if node_name in names:
-                raise malformed(path, n, f"duplicate joint name {node_name!r}")
-            names.append(node_name)
-            parents.append(parent)
-            offsets.append(None)
-            channels.append(())
-            pending = len(names) - 1
+            parser.declare(n, key, tokens)
         elif key == "{":
-            if pending is None:
-                raise malformed(path, n, "unexpected '{'")
-            stack.append(pending)
-            pending = None
+            parser.open_block(n)
         elif key == "}":
-            if not stack:
-                raise malformed(path, n, "unbalanced '}'")
-            j = stack.pop()
-            if offsets[j] is None:
-                raise malformed(path, n, f"joint {names[j]!r} has no OFFSET")
+            parser.close_block(n)
         elif key == "OFFSET":
-            if not stack or pending is not None:
-                raise malformed(path, n, "OFFSET outside a joint block")
-            if len(tokens) != 4:
-                raise malformed(path, n, f"OFFSET needs 3 numbers, got {len(tokens) - 1}")
-            try:
-                offsets[stack[-1]] = np.array([float(t) for t in tokens[1:]])
-            except ValueError:
-                raise malformed(path, n, f"OFFSET: not a number in {raw.strip()!r}") from None
+            parser.offset(n, tokens, raw)
         elif key == "CHANNELS":
-            if not stack or pending is not None:
-                raise malformed(path, n, "CHANNELS outside a joint block")
-            j = stack[-1]
-            try:
-                count = int(tokens[1])
-            except (IndexError, ValueError):
-                raise malformed(path, n, "CHANNELS needs a count") from None
-            chans = tuple(t.lower() for t in tokens[2:])
-            if count != len(chans):
-                raise malformed(path, n, f"CHANNELS says {count} but lists {len(chans)}")
-            unknown = [c for c in chans if c not in _POSITION and c not in _ROTATION]
-            if unknown or len(set(chans)) != len(chans):
-                raise malformed(path, n, f"unknown or repeated channels {unknown or chans}")
-            if parents[j] != -1 and any(c in _POSITION for c in chans):
-                raise malformed(path, n, f"position channels are supported on the root only ({names[j]!r})")
-            channels[j] = chans
+            parser.declare_channels(n, tokens)
         elif key == "MOTION":
-            if stack or pending is not None or not names:
-                raise malformed(path, n, "MOTION before the hierarchy is complete")
-            motion_line = n
-            break
+            return parser.finish(n)
         else:
             raise malformed(path, n, f"unexpected {tokens[0]!r} in the hierarchy")
-    if motion_line is None:
-        raise malformed(path, n, "no MOTION section (truncated file?)")
+    raise malformed(path, n, "no MOTION section (truncated file?)")
+
+
+def _parse_motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, int, float]:
+    """The ``Frames:`` and ``Frame Time:`` lines after ``MOTION``: the frame count, and the frame time's line and
+    value (seconds)."""
 
     def header(index: int, label: str) -> tuple[int, str]:
         line_no = motion_line + index
@@ -157,20 +215,26 @@ def read_bvh(path: str | Path, metres_per_unit: float, fps: float | None = None,
         frame_time = float(text)
     except ValueError:
         raise malformed(path, line_no, f"bad frame time {text!r}") from None
-    if fps is None:
-        if not frame_time > 0:
-            raise malformed(path, line_no, f"frame time must be positive, got {frame_time}")
-        # headers round the frame time (0.008333): snap to the integer rate it stands for
-        fps = 1.0 / frame_time
-        if abs(fps - round(fps)) < 1e-4 * fps:
-            fps = float(round(fps))
-    first_data = motion_line + 3
-    data = [(i, l.split()) for i, l in enumerate(lines[first_data - 1:], first_data) if l.strip()]
+    return num_frames, line_no, frame_time
+
+
+def _header_fps(path: Path, line_no: int, frame_time: float) -> float:
+    """The rate a header's ``Frame Time`` stands for."""
+    if not frame_time > 0:
+        raise malformed(path, line_no, f"frame time must be positive, got {frame_time}")
+    # headers round the frame time (0.008333): snap to the integer rate it stands for
+    fps = 1.0 / frame_time
+    return float(round(fps)) if abs(fps - round(fps)) < 1e-4 * fps else fps
+
+
+def _parse_frames(path: Path, lines: list[str], first_line: int, num_frames: int,
+                  width: int) -> Float[np.ndarray, "T C"]:
+    """The frame lines from ``first_line`` on: ``num_frames`` lines of ``width`` channel values each."""
+    data = [(i, l.split()) for i, l in enumerate(lines[first_line - 1:], first_line) if l.strip()]
     if len(data) < num_frames:
         raise malformed(path, len(lines), f"header says {num_frames} frames, file has {len(data)} (truncated?)")
     if len(data) > num_frames:
         raise malformed(path, data[num_frames][0], f"more frame lines than the {num_frames} in the header")
-    width = sum(len(c) for c in channels)
     for i, tok in data:
         if len(tok) != width:
             raise malformed(path, i, f"frame line has {len(tok)} values, the hierarchy has {width} channels")
@@ -188,13 +252,20 @@ def read_bvh(path: str | Path, metres_per_unit: float, fps: float | None = None,
     bad_rows = np.flatnonzero(~np.isfinite(values).all(axis=1))
     if bad_rows.size:
         raise malformed(path, data[bad_rows[0]][0], "non-finite value")
+    return values
 
-    num_nodes = len(names)
-    local = np.broadcast_to(np.eye(3), (num_frames, num_nodes, 3, 3)).copy()
-    root_positions = np.broadcast_to(offsets[0], (num_frames, 3)).copy()
-    by_order: dict[str, list[tuple[int, list[int]]]] = {}
+
+def _apply_channels(
+    hierarchy: _Hierarchy, values: Float[np.ndarray, "T C"],
+) -> tuple[Float[np.ndarray, "T J 3 3"], Float[np.ndarray, "T 3"]]:
+    """Each node's local rotation per frame (its rotation channels multiplied in the listed order, identity without
+    any) and the root's position (its offset plus its position channels), file units."""
+    num_frames = len(values)
+    local = np.broadcast_to(np.eye(3), (num_frames, len(hierarchy.names), 3, 3)).copy()
+    root_positions = np.broadcast_to(hierarchy.offsets[0], (num_frames, 3)).copy()
+    by_order: dict[str, list[tuple[int, list[int]]]] = {}  # Euler order -> (node, its rotation columns)
     column = 0
-    for j, chans in enumerate(channels):
+    for j, chans in enumerate(hierarchy.channels):
         rotation_columns, axes = [], ""
         for c in chans:
             if c in _POSITION:
@@ -212,10 +283,7 @@ def read_bvh(path: str | Path, metres_per_unit: float, fps: float | None = None,
         for k, (_, cols) in enumerate(items):
             angles[:, k, :len(cols)] = np.deg2rad(values[:, cols])
         local[:, joints] = euler_matrices(angles, order)
-    offsets_array = np.stack(offsets)
-    offsets_array[0] = 0.0
-    return build_motion(tuple(names), tuple(parents), offsets_array, local, root_positions, fps,
-                        metres_per_unit, name=name or path.stem)
+    return local, root_positions
 
 
 _WRITE_ORDER = "ZYX"

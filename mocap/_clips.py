@@ -4,11 +4,12 @@ A shipped clip ``<name>.npz`` holds, for each of its ``P`` people (2 for the sal
 together and kept in their common frame, 1 otherwise):
 
 - ``body25``: int16 ``(P, T, 25, 3)`` millimetres, z-up world (:data:`geometry.BODY25` order),
-- ``h36m17``: int16 ``(P, T, 17, 3)`` millimetres, z-up world (:data:`geometry.H36M17` order),
+- ``h36m17``: int16 ``(P, T, 17, 3)`` millimetres, z-up world (:data:`geometry.STRUCTRI17` order; the key keeps
+  the files' original name, :attr:`Clip.structri17` in memory),
 - ``fps`` (30), ``trials`` (CMU trial per person, e.g. ``"60_03"``), ``sources`` (data files per
   person), ``description``.
 
-:func:`load_clip` returns a :class:`Clip` in float64 METRES; SHELF15/SHELF14 come from the H36M17
+:func:`load_clip` returns a :class:`Clip` in float64 METRES; SHELF15/SHELF14 come from the STRUCTRI17
 joints (``geometry.to_shelf15`` with the ``"h36m"`` head rule). Positions are quantised to 1 mm (error <= 0.5 mm).
 The data was obtained from mocap.cs.cmu.edu (see ``mocap/assets/ACKNOWLEDGEMENTS.md``).
 """
@@ -23,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float
 
-from geometry import BODY25, H36M17, Skeleton, to_shelf15
+from geometry import BODY25, STRUCTRI17, Skeleton, to_shelf15
 
 from ._asf_amc import read_asf_amc
 from ._bvh import CMU_METRES_PER_UNIT, SALSA_METRES_PER_UNIT, read_bvh
@@ -57,7 +58,7 @@ class Clip(NamedTuple):
     name: str
     fps: float
     body25: Float[np.ndarray, "P T 25 3"]
-    h36m17: Float[np.ndarray, "P T 17 3"]
+    structri17: Float[np.ndarray, "P T 17 3"]
     trials: tuple[str, ...]
     sources: tuple[str, ...]
     description: str
@@ -71,15 +72,15 @@ class Clip(NamedTuple):
         return self.body25.shape[1]
 
     def joints(self, skeleton: Skeleton) -> Float[np.ndarray, "P T K 3"]:
-        """Positions for BODY25, H36M17, SHELF15 or SHELF14 (metres)."""
+        """Positions for BODY25, STRUCTRI17, SHELF15 or SHELF14 (metres)."""
         if skeleton.name == "BODY25":
             return self.body25
-        if skeleton.name == "H36M17":
-            return self.h36m17
+        if skeleton.name == "STRUCTRI17":
+            return self.structri17
         if skeleton.name in ("SHELF15", "SHELF14"):
-            shelf = np.asarray(to_shelf15(self.h36m17, H36M17))
+            shelf = np.asarray(to_shelf15(self.structri17, STRUCTRI17))
             return shelf if skeleton.name == "SHELF15" else shelf[..., :14, :]
-        raise ValueError(f"a clip has no {skeleton.name} joints; use BODY25, H36M17, SHELF15 or SHELF14")
+        raise ValueError(f"a clip has no {skeleton.name} joints; use BODY25, STRUCTRI17, SHELF15 or SHELF14")
 
 
 def read_clip_sources(data_root: str | Path, name: str) -> list[Motion]:
@@ -108,7 +109,7 @@ def clip_from_motions(name: str, motions: list[Motion], fps: float = 30.0, descr
     resampled = [resample_motion(m, fps) if m.fps != fps else m for m in motions]
     return Clip(name, float(fps),
                 np.stack([motion_joint_positions(m, BODY25) for m in resampled]),
-                np.stack([motion_joint_positions(m, H36M17) for m in resampled]),
+                np.stack([motion_joint_positions(m, STRUCTRI17) for m in resampled]),
                 tuple(m.name.replace("_scaled", "")[:5] for m in motions), tuple(sources), description)
 
 
@@ -123,7 +124,7 @@ def save_clip(clip: Clip, path: str | Path) -> None:
     """Write ``clip`` as int16 millimetres in a byte-for-byte deterministic ``.npz`` (fixed zip dates)."""
     arrays = {
         "body25": _millimetres(clip.body25, clip.name),
-        "h36m17": _millimetres(clip.h36m17, clip.name),
+        "h36m17": _millimetres(clip.structri17, clip.name),
         "fps": np.float64(clip.fps),
         "trials": np.array(clip.trials),
         "sources": np.array(clip.sources),
@@ -150,12 +151,12 @@ def load_clip(name: str, assets: str | Path = ASSETS) -> Clip:
         raise KeyError(f"no shipped clip {name!r} in {assets}; available: {list_clips(assets)}")
     with np.load(path, allow_pickle=False) as data:
         try:
-            body25, h36m17 = data["body25"], data["h36m17"]
+            body25, structri17 = data["body25"], data["h36m17"]
             fps, trials, sources = float(data["fps"]), data["trials"], data["sources"]
             description = str(data["description"])
         except KeyError as e:
             raise ValueError(f"{path}: missing array {e}") from None
-    if body25.shape[-2:] != (25, 3) or h36m17.shape[-2:] != (17, 3) or body25.shape[:2] != h36m17.shape[:2]:
-        raise ValueError(f"{path}: bad shapes body25 {body25.shape}, h36m17 {h36m17.shape}")
-    return Clip(name, fps, body25.astype(np.float64) / 1000.0, h36m17.astype(np.float64) / 1000.0,
+    if body25.shape[-2:] != (25, 3) or structri17.shape[-2:] != (17, 3) or body25.shape[:2] != structri17.shape[:2]:
+        raise ValueError(f"{path}: bad shapes body25 {body25.shape}, structri17 {structri17.shape}")
+    return Clip(name, fps, body25.astype(np.float64) / 1000.0, structri17.astype(np.float64) / 1000.0,
                 tuple(str(t) for t in trials), tuple(str(s) for s in sources), description)

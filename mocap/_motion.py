@@ -54,8 +54,8 @@ r_heel            rfoot + (0, -0.05, -0.05)                rFoot + (0, -0.05, -0
 Left joints mirror the right ones (``l`` names, x offset negated). The face and foot offsets are
 anthropometric guesses for an adult (eye 7 cm below the crown, ears 7.5 cm to the side, heel 5 cm
 behind and below the ankle centre); they give the 2D detector model keypoints that move with the
-head and feet, not anatomy to the centimetre. SHELF15/SHELF14 come from H36M17 through
-``geometry.to_shelf15(h36m17, H36M17)`` (head rule ``"h36m"``: ``head_bottom`` = H36M ``neck_nose``,
+head and feet, not anatomy to the centimetre. SHELF15/SHELF14 come from STRUCTRI17 through
+``geometry.to_shelf15(structri17, STRUCTRI17)`` (head rule ``"h36m"``: ``head_bottom`` = H36M ``neck_nose``,
 ``head_top`` = H36M ``head``).
 """
 
@@ -69,7 +69,7 @@ import numpy as np
 from jaxtyping import Float
 
 import geometry
-from geometry import H36M17, SHELF14, Skeleton, to_shelf15
+from geometry import SHELF14, STRUCTRI17, Skeleton, to_shelf15
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -270,7 +270,7 @@ def _cmu_table(root: str) -> dict[str, dict[str, tuple]]:
         "r_heel": ("offset", "rfoot", (0.0, -0.05, -0.05)),
     }
     left = lambda n: "l" + n[1:] if n[0] == "r" and n != "root" else n  # noqa: E731
-    return {"H36M17": _sided(h36m, left), "BODY25": _sided(body25, left)}
+    return {"STRUCTRI17": _sided(h36m, left), "BODY25": _sided(body25, left)}
 
 
 def _daz_table() -> dict[str, dict[str, tuple]]:
@@ -290,13 +290,26 @@ def _daz_table() -> dict[str, dict[str, tuple]]:
         "r_heel": ("offset", "rFoot", (0.0, -0.05, -0.05)),
     }
     left = lambda n: "leftEye" if n == "rightEye" else "l" + n[1:] if n[0] == "r" else n  # noqa: E731
-    return {"H36M17": _sided(h36m, left), "BODY25": _sided(body25, left)}
+    return {"STRUCTRI17": _sided(h36m, left), "BODY25": _sided(body25, left)}
 
 
 def _procedural_table() -> dict[str, dict[str, tuple]]:
-    from ._procedural import PROCEDURAL_MAPPING
-
-    return PROCEDURAL_MAPPING
+    """The rig of :func:`mocap.procedural_motion` (node names in ``mocap/_procedural.py``)."""
+    limbs = {f"r_{j}": ("node", f"r_{j}_joint") for j in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")}
+    h36m = {**limbs, "mid_hip": ("node", "pelvis"), "spine": ("node", "spine"), "thorax": ("node", "thorax"),
+            "neck_nose": ("node", "neck"), "head": ("node", "head_top")}
+    body25 = {
+        **limbs, "mid_hip": ("mid", "l_hip_joint", "r_hip_joint"),
+        "neck": ("mid", "l_shoulder_joint", "r_shoulder_joint"),
+        "nose": ("offset", "head_top", (0.0, -0.10, 0.10)),
+        "r_eye": ("offset", "head_top", (-0.032, -0.07, 0.08)),
+        "r_ear": ("offset", "head_top", (-0.075, -0.09, 0.0)),
+        "r_big_toe": ("offset", "r_toe", (0.015, 0.0, 0.0)),
+        "r_small_toe": ("offset", "r_toe", (-0.045, 0.0, -0.03)),
+        "r_heel": ("offset", "r_ankle_joint", (0.0, -0.05, -0.05)),
+    }
+    left = lambda n: "l" + n[1:] if n.startswith("r_") else n  # noqa: E731
+    return {"STRUCTRI17": _sided(h36m, left), "BODY25": _sided(body25, left)}
 
 
 def _mapping(motion: Motion, skeleton_name: str) -> dict[str, tuple]:
@@ -313,15 +326,15 @@ def _mapping(motion: Motion, skeleton_name: str) -> dict[str, tuple]:
 
 
 def motion_joint_positions(motion: Motion, skeleton: Skeleton) -> Float[np.ndarray, "T K 3"]:
-    """Positions of ``skeleton``'s joints (H36M17, BODY25, SHELF15 or SHELF14), metres, z-up world.
+    """Positions of ``skeleton``'s joints (STRUCTRI17, BODY25, SHELF15 or SHELF14), metres, z-up world.
 
     See the module docstring for the table of which source node feeds which joint.
     """
     if skeleton.name in ("SHELF15", "SHELF14"):
-        shelf = np.asarray(to_shelf15(motion_joint_positions(motion, H36M17), H36M17))
+        shelf = np.asarray(to_shelf15(motion_joint_positions(motion, STRUCTRI17), STRUCTRI17))
         return shelf if skeleton.name == "SHELF15" else shelf[:, :14]
-    if skeleton.name not in ("H36M17", "BODY25"):
-        raise ValueError(f"no mapping to {skeleton.name}; use H36M17, BODY25, SHELF15 or SHELF14")
+    if skeleton.name not in ("STRUCTRI17", "BODY25"):
+        raise ValueError(f"no mapping to {skeleton.name}; use STRUCTRI17, BODY25, SHELF15 or SHELF14")
     table = _mapping(motion, skeleton.name)
     out = np.empty((motion.num_frames, skeleton.num_joints, 3))
     for k, joint in enumerate(skeleton.joints):

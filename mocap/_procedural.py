@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._clips import Clip, clip_from_motions
-from ._motion import Motion, _sided, build_motion, euler_matrices
+from ._motion import Motion, build_motion, euler_matrices
 
-__all__ = ["PROCEDURAL_MAPPING", "procedural_motion", "procedural_clip"]
+__all__ = ["procedural_motion", "procedural_clip"]
 
 # node: (parent, rest offset in metres in the body frame: x left, y up, z forward)
 _RIG: dict[str, tuple[str | None, tuple[float, float, float]]] = {
@@ -43,28 +43,6 @@ _RIG: dict[str, tuple[str | None, tuple[float, float, float]]] = {
 _NAMES = tuple(_RIG)
 _PARENTS = tuple(-1 if p is None else _NAMES.index(p) for p, _ in _RIG.values())
 _ANKLE_HEIGHT = 0.07  # ankle centre above the floor at rest, metres
-
-
-def _table() -> dict[str, dict[str, tuple]]:
-    limbs = {f"r_{j}": ("node", f"r_{j}_joint") for j in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist")}
-    h36m = {**limbs, "mid_hip": ("node", "pelvis"), "spine": ("node", "spine"), "thorax": ("node", "thorax"),
-            "neck_nose": ("node", "neck"), "head": ("node", "head_top")}
-    body25 = {
-        **limbs, "mid_hip": ("mid", "l_hip_joint", "r_hip_joint"),
-        "neck": ("mid", "l_shoulder_joint", "r_shoulder_joint"),
-        "nose": ("offset", "head_top", (0.0, -0.10, 0.10)),
-        "r_eye": ("offset", "head_top", (-0.032, -0.07, 0.08)),
-        "r_ear": ("offset", "head_top", (-0.075, -0.09, 0.0)),
-        "r_big_toe": ("offset", "r_toe", (0.015, 0.0, 0.0)),
-        "r_small_toe": ("offset", "r_toe", (-0.045, 0.0, -0.03)),
-        "r_heel": ("offset", "r_ankle_joint", (0.0, -0.05, -0.05)),
-    }
-    left = lambda n: "l" + n[1:] if n.startswith("r_") else n  # noqa: E731
-    return {"H36M17": _sided(h36m, left), "BODY25": _sided(body25, left)}
-
-
-PROCEDURAL_MAPPING = _table()
-"""Target joint -> source node for the procedural rig (same scheme as the CMU tables)."""
 
 
 def procedural_motion(seed: int = 0, num_frames: int = 240, fps: float = 30.0,

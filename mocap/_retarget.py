@@ -1,6 +1,6 @@
 """Retarget the shipped CMU clips (joint positions only) to the body model's 24 joints by position-based IK.
 
-A :class:`~mocap.Clip` holds BODY25 and H36M17 joint POSITIONS (metres, z-up world) and no rotations.
+A :class:`~mocap.Clip` holds BODY25 and STRUCTRI17 joint POSITIONS (metres, z-up world) and no rotations.
 :func:`retarget_clip` turns them into :data:`geometry.SMPL24` local rotations and a translation for
 :func:`geometry.body_forward`, so the model's bones point where the clip's do:
 
@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from geometry import BODY25, H36M17, SMPL24, BodyModel
+from geometry import BODY25, SMPL24, STRUCTRI17, BodyModel
 
 from ._clips import Clip
 
@@ -144,7 +144,7 @@ def _along_polyline(points: Float[np.ndarray, "P T N 3"], fraction: Float[np.nda
 def _target_positions(clip: Clip, rest: Float[np.ndarray, "P 24 3"]) -> dict[str, np.ndarray]:
     """Target position ``(P, T, 3)`` of each SMPL24 joint the clip informs (module docstring), metres."""
     body = {name: clip.body25[..., k, :] for k, name in enumerate(BODY25.joints)}
-    h36m = {name: clip.h36m17[..., k, :] for k, name in enumerate(H36M17.joints)}
+    h36m = {name: clip.structri17[..., k, :] for k, name in enumerate(STRUCTRI17.joints)}
     pelvis, neck = 0.5 * (body["l_hip"] + body["r_hip"]), h36m["thorax"]
     targets = {"mid_hip": pelvis, "neck": neck, "head": 0.5 * (body["l_ear"] + body["r_ear"])}
     for side in "lr":
@@ -191,7 +191,7 @@ def _head_rotation(clip: Clip) -> Float[np.ndarray, "P T 3 3"]:
     body = {name: clip.body25[..., k, :] for k, name in enumerate(BODY25.joints)}
     ears = 0.5 * (body["l_ear"] + body["r_ear"])
     target = _unit(np.stack([body["l_ear"] - body["r_ear"], body["nose"] - ears,
-                             clip.h36m17[..., H36M17.index("head"), :] - ears], axis=-2))
+                             clip.structri17[..., STRUCTRI17.index("head"), :] - ears], axis=-2))
     rest = np.broadcast_to(np.stack([_LEFT, _FORWARD, _UP]), target.shape)
     return _kabsch(rest, target, np.ones(3))
 
@@ -319,14 +319,14 @@ def _checked_betas(betas: ArrayLike | None, num_people: int, num_shapes: int) ->
 
 
 def _check_clip(clip: Clip) -> None:
-    body25, h36m17 = np.asarray(clip.body25), np.asarray(clip.h36m17)
-    if body25.ndim != 4 or body25.shape[2:] != (25, 3) or h36m17.ndim != 4 or h36m17.shape[2:] != (17, 3):
-        raise ValueError(f"clip {clip.name!r}: need body25 (P, T, 25, 3) and h36m17 (P, T, 17, 3), got "
-                         f"{body25.shape} and {h36m17.shape}")
-    if body25.shape[:2] != h36m17.shape[:2] or 0 in body25.shape[:2]:
-        raise ValueError(f"clip {clip.name!r}: body25 and h36m17 need the same non-zero people and frame counts, "
-                         f"got {body25.shape[:2]} and {h36m17.shape[:2]}")
-    for field, joints in (("body25", body25), ("h36m17", h36m17)):
+    body25, structri17 = np.asarray(clip.body25), np.asarray(clip.structri17)
+    if body25.ndim != 4 or body25.shape[2:] != (25, 3) or structri17.ndim != 4 or structri17.shape[2:] != (17, 3):
+        raise ValueError(f"clip {clip.name!r}: need body25 (P, T, 25, 3) and structri17 (P, T, 17, 3), got "
+                         f"{body25.shape} and {structri17.shape}")
+    if body25.shape[:2] != structri17.shape[:2] or 0 in body25.shape[:2]:
+        raise ValueError(f"clip {clip.name!r}: body25 and structri17 need the same non-zero people and frame counts, "
+                         f"got {body25.shape[:2]} and {structri17.shape[:2]}")
+    for field, joints in (("body25", body25), ("structri17", structri17)):
         if not np.all(np.isfinite(joints)):
             raise ValueError(f"clip {clip.name!r}: {field} contains NaN or inf")
     if not clip.fps > 0:
@@ -337,7 +337,7 @@ def retarget_clip(clip: Clip, model: BodyModel, betas: ArrayLike | None = None) 
     """Rotations and translations that make ``model`` follow ``clip`` (module docstring).
 
     Args:
-        clip: ``P`` people over ``T`` frames of BODY25 and H36M17 joint positions (metres, z-up world).
+        clip: ``P`` people over ``T`` frames of BODY25 and STRUCTRI17 joint positions (metres, z-up world).
         model: a body model on :data:`geometry.SMPL24`.
         betas: shape coefficients ``(S,)`` for everyone or ``(P, S)`` per person; ``None``: zeros.
 
@@ -348,7 +348,7 @@ def retarget_clip(clip: Clip, model: BodyModel, betas: ArrayLike | None = None) 
     if model.skeleton != SMPL24:
         raise ValueError(f"retargeting needs a body model on SMPL24, got {model.skeleton.name}")
     _check_clip(clip)
-    clip = clip._replace(body25=np.asarray(clip.body25, np.float64), h36m17=np.asarray(clip.h36m17, np.float64))
+    clip = clip._replace(body25=np.asarray(clip.body25, np.float64), structri17=np.asarray(clip.structri17, np.float64))
     betas = _checked_betas(betas, clip.body25.shape[0], model.num_shapes)
     rest = _rest_joints(model, betas)
     global_rotations = _global_rotations(clip, rest)

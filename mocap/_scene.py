@@ -20,7 +20,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Int
 
 import geometry
-from geometry import BODY25, H36M17, Camera
+from geometry import BODY25, STRUCTRI17, Camera
 
 from ._clips import Clip, list_clips, load_clip
 from ._detections import Detections
@@ -40,8 +40,8 @@ class MotionGroup(NamedTuple):
     """One clip name per person."""
     body25: Float[np.ndarray, "time people 25 3"]
     """BODY25 joints in metres, world z up, feet on z = 0, at the scene's frame rate."""
-    h36m17: Float[np.ndarray, "time people 17 3"]
-    """H36M17 joints (Structural Triangulation order) of the same people and frames."""
+    structri17: Float[np.ndarray, "time people 17 3"]
+    """STRUCTRI17 joints (Structural Triangulation order) of the same people and frames."""
 
 
 class ScenePlacement(NamedTuple):
@@ -69,10 +69,10 @@ class Scene(NamedTuple):
     body25: Float[np.ndarray, "frames people 25 3"]
     """Ground-truth BODY25 joints, metres, world z up."""
     shelf15: Float[np.ndarray, "frames people 15 3"]
-    """Ground truth in the Shelf evaluation joint set, from the H36M17 joints like the clips'
+    """Ground truth in the Shelf evaluation joint set, from the STRUCTRI17 joints like the clips'
     (``geometry.to_shelf15`` with the ``"h36m"`` rule: head bottom = H36M neck/nose, head top = H36M head), so it does
     not share the BODY25 head geometry the detections come from."""
-    h36m17: Float[np.ndarray, "frames people 17 3"]
+    structri17: Float[np.ndarray, "frames people 17 3"]
     body25_pixels: Float[np.ndarray, "frames views people 25 2"]
     """Projected BODY25 ground truth (pixels; meaningless where the joint is behind the camera)."""
     shelf15_pixels: Float[np.ndarray, "frames views people 15 2"]
@@ -125,7 +125,7 @@ def _rotation_z(angle: float) -> np.ndarray:
 
 class _PlacedGroup(NamedTuple):
     body25: np.ndarray  # (frames, n, 25, 3)
-    h36m17: np.ndarray  # (frames, n, 17, 3)
+    structri17: np.ndarray  # (frames, n, 17, 3)
     root: np.ndarray  # (frames, n, 2) mid-hip on the floor
     offset: np.ndarray
     heading: float
@@ -147,7 +147,7 @@ def _random_placement(
     shift = int(rng.integers(0, max(length - num_frames, 0) + 1))
     heading = float(rng.uniform(0.0, 2.0 * np.pi))
     frames = _ping_pong(shift + np.arange(num_frames), length)
-    b25, h17 = group.body25[frames], group.h36m17[frames]
+    b25, h17 = group.body25[frames], group.structri17[frames]
     centre = b25[:, :, hip, :2].reshape(-1, 2).mean(0)
     rotation = _rotation_z(heading)
     root = np.einsum("ij,...j->...i", rotation[:2, :2], b25[:, :, hip, :2] - centre)
@@ -223,7 +223,7 @@ def place_groups(
         np.array([p.heading for p in placed]), np.array([p.time_shift for p in placed]),
         np.array([p.path_scale for p in placed]), min_distance,
     )
-    return (np.concatenate([p.body25 for p in placed], axis=1), np.concatenate([p.h36m17 for p in placed], axis=1),
+    return (np.concatenate([p.body25 for p in placed], axis=1), np.concatenate([p.structri17 for p in placed], axis=1),
             placement)
 
 
@@ -251,20 +251,21 @@ def compose_scene(
         n = len(group.names)
         if group.body25.ndim != 4 or group.body25.shape[1:] != (n, 25, 3):
             raise ValueError(f"group {group.names}: body25 must be (time, {n}, 25, 3), got {group.body25.shape}")
-        if group.h36m17.shape != group.body25.shape[:2] + (17, 3):
-            raise ValueError(f"group {group.names}: h36m17 must be {group.body25.shape[:2] + (17, 3)}, got {group.h36m17.shape}")
+        if group.structri17.shape != group.body25.shape[:2] + (17, 3):
+            raise ValueError(f"group {group.names}: structri17 must be {group.body25.shape[:2] + (17, 3)}, "
+                             f"got {group.structri17.shape}")
     placement_key, detector_key = jax.random.split(_as_key(key))
     area = capture_area(rig) if area is None else tuple(float(a) for a in area)
     if len(area) != 4:
         raise ValueError(f"area must be (x_min, y_min, x_max, y_max) in metres, got {len(area)} values")
-    body25, h36m17, placement = place_groups(
+    body25, structri17, placement = place_groups(
         _numpy_rng(placement_key), groups, num_frames, area, min_separation, max_attempts=max_attempts
     )
     detections, events = detect_with_events(detector_key, rig, body25, detector)
-    shelf15 = np.asarray(geometry.to_shelf15(h36m17, H36M17))
+    shelf15 = np.asarray(geometry.to_shelf15(structri17, STRUCTRI17))
     shelf15_pixels = np.asarray(geometry.project_to_views(rig, shelf15)).transpose(1, 0, 2, 3, 4)
     return Scene(
-        rig=rig, body25=body25, shelf15=shelf15, h36m17=h36m17, body25_pixels=events.geometry.pixels,
+        rig=rig, body25=body25, shelf15=shelf15, structri17=structri17, body25_pixels=events.geometry.pixels,
         shelf15_pixels=shelf15_pixels, visible=events.geometry.visible, detections=detections, events=events,
         placement=placement, fps=fps,
     )
@@ -273,7 +274,7 @@ def compose_scene(
 def motion_group(clip: Clip) -> MotionGroup:
     """A clip's people as one :class:`MotionGroup` (time axis first)."""
     names = tuple(clip.name if clip.num_people == 1 else f"{clip.name}[{p}]" for p in range(clip.num_people))
-    return MotionGroup(names, np.swapaxes(clip.body25, 0, 1), np.swapaxes(clip.h36m17, 0, 1))
+    return MotionGroup(names, np.swapaxes(clip.body25, 0, 1), np.swapaxes(clip.structri17, 0, 1))
 
 
 def synthesize_scene(

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import geometry
+
 from ._clips import CLIP_SOURCES, clip_from_motions, read_clip_sources, save_clip
 
 
@@ -20,6 +22,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--clips", nargs="*", default=sorted(CLIP_SOURCES), help="clip names")
     parser.add_argument("--fps", type=float, default=30.0)
     args = parser.parse_args(argv)
+    geometry.disable_faulty_cpu_fusion()  # the configuration the shipped clips were made with
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for name in args.clips:

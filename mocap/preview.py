@@ -64,10 +64,10 @@ def draw_frame(
 ) -> None:
     """Write a PNG of one frame: ``detections[view]`` (:class:`~mocap.Detections`) and ``truth``
     ``(people, joints, 3)`` metres in ``truth_skeleton``'s joint order."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # A bare Figure draws with Agg without pyplot, so the caller's matplotlib backend stays as it was.
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
 
     import geometry
     from geometry import BODY25
@@ -77,16 +77,16 @@ def draw_frame(
     n_views = len(detections)
     n_cols = 3
     n_rows = -(-(n_views + 1) // n_cols)
-    fig = plt.figure(figsize=(6.0 * n_cols, 4.8 * n_rows), dpi=80)
-    person_colours = plt.get_cmap("tab10")
-    joint_colours = plt.get_cmap("hsv")
+    fig = Figure(figsize=(6.0 * n_cols, 4.8 * n_rows), dpi=80)
+    person_colours = colormaps["tab10"]
+    joint_colours = colormaps["hsv"]
     sizes = np.asarray(rig.image_size)
     truth_px = np.asarray(geometry.project_to_views(rig, truth)) if len(truth) else np.zeros((n_views, 0, 1, 2))
     truth_depth = np.stack([np.asarray(geometry.depth(rig.select(v), truth)) for v in range(n_views)]) if len(truth) else None
     for v, det in enumerate(detections):
         ax = fig.add_subplot(n_rows, n_cols, v + 1)
         width, height = sizes[v]
-        ax.add_patch(plt.Rectangle((0, 0), width, height, facecolor="#f4f4f4", edgecolor="black", lw=0.8))
+        ax.add_patch(Rectangle((0, 0), width, height, facecolor="#f4f4f4", edgecolor="black", lw=0.8))
         for p in range(truth_px.shape[1]):
             for parent, child in truth_skeleton.bones:
                 if truth_depth[v, p, parent] > 0.1 and truth_depth[v, p, child] > 0.1:
@@ -152,7 +152,6 @@ def draw_frame(
     fig.suptitle(title, fontsize=12)
     fig.tight_layout()
     fig.savefig(out)
-    plt.close(fig)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -186,9 +185,12 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--frame must be >= 0")
     import jax
 
-    jax.config.update("jax_enable_x64", True)
+    import geometry
     import mocap
     from geometry import SHELF14, SHELF15
+
+    geometry.disable_faulty_cpu_fusion()
+    jax.config.update("jax_enable_x64", True)
 
     if args.source == "synthetic":
         num_frames = args.frame + 1 if args.num_frames is None else args.num_frames

@@ -19,7 +19,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from geometry import H36M17, Camera, Skeleton
+from geometry import STRUCTRI17, Camera, Skeleton
 
 from ._solver import (_default_weights, _pose_from_bones, _quadratic_form, _reduced_from_quadratic, _tree,
                       ls_triangulation, projection_matrices, structural_triangulation)
@@ -66,7 +66,7 @@ def constrained_reference(
     points_2d: Float[ArrayLike, "views joints 2"],
     cameras: Camera | Float[ArrayLike, "views 3 4"],
     bone_lengths: Float[ArrayLike, "bones"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "views joints"] | None = None,
     max_steps: int = 512,
 ) -> ReferenceResult:

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from geometry import H36M17, Camera, Skeleton, projection_matrix, triangulate_point
+from geometry import STRUCTRI17, Camera, Skeleton, projection_matrix, triangulate_point
 
 __all__ = [
     "Status",
@@ -239,7 +239,7 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]
 
 
 _UNROLLED_MAX_SIZE = 24
-"""Largest system :func:`_solve_symmetric` eliminates unrolled (H36M17 has 16 bones, BODY25 24)."""
+"""Largest system :func:`_solve_symmetric` eliminates unrolled (STRUCTRI17 has 16 bones, BODY25 24)."""
 
 
 def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F"]) -> Float[Array, "n *cols F"]:
@@ -254,7 +254,7 @@ def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F
 
     Up to ``_UNROLLED_MAX_SIZE`` unknowns (SCA's bones x bones systems) the elimination is unrolled
     with static slices, each step on the shrinking trailing block only: ST + SCA ran 1.25x faster
-    than with the loop (H36M17, 4 views, 10k frames, side by side). Larger systems (the exact
+    than with the loop (STRUCTRI17, 4 views, 10k frames, side by side). Larger systems (the exact
     variant's 3 bones x 3 bones) take :func:`_solve_symmetric_loop`: unrolled, they compiled for 16 s
     instead of 2 s."""
     if system.shape[0] > _UNROLLED_MAX_SIZE:
@@ -405,7 +405,7 @@ def _reduced_from_quadratic(tree, D: Float[Array, "joints 3 3"], m: Float[Array,
 def reduced_problem(
     points_2d: Float[ArrayLike, "views joints 2"],
     projections: Float[ArrayLike, "views 3 4"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "views joints"] | None = None,
 ) -> tuple[Float[Array, "dim dim"], Float[Array, "dim"]]:
     """``A = (GQ)^T D (GQ)`` and ``beta = (GQ)^T m`` of one frame (paper Eq. 8), dense.
@@ -584,7 +584,7 @@ def structural_triangulation(
     points_2d: Float[ArrayLike, "*frames views joints 2"],
     cameras: Camera | Float[ArrayLike, "*pframes views 3 4"],
     bone_lengths: Float[ArrayLike, "*lframes bones"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "*frames views joints"] | None = None,
     n_steps: int = 3,
     *,
@@ -634,7 +634,7 @@ def structural_triangulation(
 def ls_triangulation(
     points_2d: Float[ArrayLike, "*frames views joints 2"],
     cameras: Camera | Float[ArrayLike, "*pframes views 3 4"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "*frames views joints"] | None = None,
 ) -> StructriResult:
     """Unconstrained weighted linear least squares (the paper's LS, ``b0 = A^-1 beta``), per joint."""
@@ -646,7 +646,7 @@ def lagrangian_triangulation(
     points_2d: Float[ArrayLike, "*frames views joints 2"],
     cameras: Camera | Float[ArrayLike, "*pframes views 3 4"],
     bone_lengths: Float[ArrayLike, "*lframes bones"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "*frames views joints"] | None = None,
     n_iterations: int = 200,
     *,
@@ -671,7 +671,7 @@ def lagrangian_triangulation(
 def lem_triangulation(
     points_2d: Float[ArrayLike, "*frames views joints 2"],
     cameras: Camera | Float[ArrayLike, "*pframes views 3 4"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "*frames views joints"] | None = None,
     *,
     millimetres_per_unit: float = 1000.0,
@@ -713,7 +713,7 @@ def _lem_flat(points_2d, P, lengths, weights, *, axes, skeleton, scale):
 def estimate_bone_lengths(
     points_2d: Float[ArrayLike, "frames views joints 2"],
     cameras: Camera | Float[ArrayLike, "views 3 4"],
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: Float[ArrayLike, "frames views joints"] | None = None,
     frames: ArrayLike | None = None,
     symmetric: bool = True,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geometry import H36M17, Skeleton, bones_to_joints_matrix
+from geometry import STRUCTRI17, Skeleton, bones_to_joints_matrix
 
 __all__ = ["numpy_structural_triangulation", "numpy_lem_triangulation", "numpy_structural_triangulation_frames"]
 
@@ -35,7 +35,7 @@ def numpy_structural_triangulation(
     points_2d: np.ndarray,
     projections: np.ndarray,
     bone_lengths: np.ndarray,
-    skeleton: Skeleton = H36M17,
+    skeleton: Skeleton = STRUCTRI17,
     confidences: np.ndarray | None = None,
     n_steps: int = 3,
     method: str = "ST",
@@ -70,7 +70,7 @@ def numpy_structural_triangulation(
     return (G @ np.concatenate([x0, b])).reshape(num_joints, 3)
 
 
-def numpy_structural_triangulation_frames(points_2d, projections, bone_lengths, skeleton=H36M17,
+def numpy_structural_triangulation_frames(points_2d, projections, bone_lengths, skeleton=STRUCTRI17,
                                           confidences=None, n_steps=3, method="ST") -> np.ndarray:
     """Loop :func:`numpy_structural_triangulation` over frames ``(frames, views, J, 2) -> (frames, J, 3)``."""
     return np.stack([

@@ -55,7 +55,9 @@ def run_on_two_devices(body: str, config, tmp_path: Path) -> Path:
     unpickled as ``config``, and ``OUT`` the path of the ``.npz`` it must write; returns that path."""
     (tmp_path / "config.pkl").write_bytes(pickle.dumps(config))
     out = tmp_path / "two_devices.npz"
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    # Added to the flags conftest set (the fusion switch), which the child must run with as this process does.
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2".strip()
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
     subprocess.run([sys.executable, "-c", _TWO_DEVICE_PROLOGUE + textwrap.dedent(body), str(tmp_path / "config.pkl"),
                     str(out), str(TESTS)], check=True, env=env, cwd=TESTS.parent, timeout=300)
     return out

@@ -1,7 +1,8 @@
 """Test configuration: strict numerics and the data folder.
 
-``geometry`` is imported before any computation: it sets the XLA flag that must be in the environment before jax
-initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_regression.py``).
+``geometry.disable_faulty_cpu_fusion()`` is called before any computation: it sets the XLA flag that must be in the
+environment before jax initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_regression.py``);
+subprocesses and notebook kernels started by the tests inherit it.
 """
 
 import gc
@@ -23,7 +24,10 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-import geometry  # noqa: F401  (switches off jaxlib 0.10.2's faulty CPU fusion before jax computes)
+import geometry  # noqa: E402
+
+if not geometry.disable_faulty_cpu_fusion():
+    raise RuntimeError("jax computed before tests/conftest.py could switch its faulty CPU fusion off")
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")

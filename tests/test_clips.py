@@ -5,14 +5,14 @@ import pytest
 
 import mocap
 import mocap.convert_cmu
-from geometry import BODY25, H36M17, SHELF14, SHELF15
+from geometry import BODY25, SHELF14, SHELF15, STRUCTRI17
 
 SHIPPED = {"01_01_jumps": 1, "02_01_walk": 1, "02_03_run": 1, "02_04_jump": 1, "02_05_punch": 1,
            "03_01_uneven": 1, "18_01_handshake": 1, "60_03_61_03_salsa": 2, "60_05_61_05_salsa": 2}
 
 
 def _limb_lengths(h36m: np.ndarray) -> np.ndarray:
-    pairs = [(H36M17.index(a), H36M17.index(b)) for a, b in
+    pairs = [(STRUCTRI17.index(a), STRUCTRI17.index(b)) for a, b in
              (("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"))]
     return np.stack([np.linalg.norm(h36m[..., a, :] - h36m[..., b, :], axis=-1) for a, b in pairs], axis=-1)
 
@@ -31,16 +31,16 @@ def test_shipped_clip_loads(name):
     clip = mocap.load_clip(name)
     assert clip.fps == 30.0 and clip.num_people == SHIPPED[name] == len(clip.trials)
     assert clip.body25.shape == (clip.num_people, clip.num_frames, 25, 3)
-    assert clip.h36m17.shape == (clip.num_people, clip.num_frames, 17, 3)
+    assert clip.structri17.shape == (clip.num_people, clip.num_frames, 17, 3)
     assert clip.num_frames > 40 and np.isfinite(clip.body25).all()
     # bones are rigid up to the 1 mm quantisation; z is up
-    limbs = _limb_lengths(clip.h36m17)
+    limbs = _limb_lengths(clip.structri17)
     assert np.all(limbs.std(axis=1) < 2e-3) and np.all((0.15 < limbs) & (limbs < 0.6))
-    head = clip.h36m17[..., H36M17.index("head"), 2]
-    ankles = clip.h36m17[..., [H36M17.index("l_ankle"), H36M17.index("r_ankle")], 2].max(axis=-1)
+    head = clip.structri17[..., STRUCTRI17.index("head"), 2]
+    ankles = clip.structri17[..., [STRUCTRI17.index("l_ankle"), STRUCTRI17.index("r_ankle")], 2].max(axis=-1)
     assert np.mean(head - ankles > 1.0) > 0.9
     shelf = clip.joints(SHELF15)
-    np.testing.assert_allclose(shelf[..., 14, :], clip.h36m17[..., [2, 3], :].mean(axis=-2))
+    np.testing.assert_allclose(shelf[..., 14, :], clip.structri17[..., [2, 3], :].mean(axis=-2))
     assert clip.joints(SHELF14).shape[-2] == 14 and clip.joints(BODY25) is clip.body25
 
 
@@ -56,7 +56,7 @@ def test_reconversion_reproduces_shipped(data_root, tmp_path, name):
     mocap.convert_cmu.main(["--data-root", str(data_root), "--out", str(tmp_path), "--clips", name])
     fresh, shipped = mocap.load_clip(name, tmp_path), mocap.load_clip(name)
     np.testing.assert_allclose(fresh.body25, shipped.body25, atol=1e-3 + 1e-9)
-    np.testing.assert_allclose(fresh.h36m17, shipped.h36m17, atol=1e-3 + 1e-9)
+    np.testing.assert_allclose(fresh.structri17, shipped.structri17, atol=1e-3 + 1e-9)
     assert (tmp_path / f"{name}.npz").read_bytes() == (mocap.ASSETS / f"{name}.npz").read_bytes()
 
 
@@ -65,7 +65,7 @@ def test_quantisation_round_trip(tmp_path):
     mocap.save_clip(clip, tmp_path / "p.npz")
     loaded = mocap.load_clip("p", tmp_path)
     np.testing.assert_allclose(loaded.body25, clip.body25, atol=0.5e-3 + 1e-12)
-    np.testing.assert_allclose(loaded.h36m17, clip.h36m17, atol=0.5e-3 + 1e-12)
+    np.testing.assert_allclose(loaded.structri17, clip.structri17, atol=0.5e-3 + 1e-12)
     assert loaded.trials == clip.trials and loaded.fps == clip.fps
     far = clip._replace(body25=clip.body25 + 40.0)
     with pytest.raises(ValueError, match="int16"):
@@ -78,10 +78,10 @@ def test_procedural_is_deterministic_and_walks():
     c = mocap.procedural_clip(seed=8, num_frames=90, num_people=2)
     np.testing.assert_array_equal(a.body25, b.body25)
     assert not np.allclose(a.body25, c.body25)
-    assert a.body25.shape == (2, 90, 25, 3) and a.h36m17.shape == (2, 90, 17, 3)
-    pelvis = a.h36m17[:, :, 0]
+    assert a.body25.shape == (2, 90, 25, 3) and a.structri17.shape == (2, 90, 17, 3)
+    pelvis = a.structri17[:, :, 0]
     speed = np.linalg.norm(np.diff(pelvis[..., :2], axis=1), axis=-1) * a.fps
     assert np.all((0.6 < speed.mean(axis=1)) & (speed.mean(axis=1) < 1.8))
     assert np.all(np.linalg.norm(pelvis[0, :, :2] - pelvis[1, :, :2], axis=-1)[0] > 1.5)
-    limbs = _limb_lengths(a.h36m17)
+    limbs = _limb_lengths(a.structri17)
     assert np.all(limbs.std(axis=1) < 1e-9)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from geometry import (BODY25, shelf15_conversion_matrix, COCO17, H36M17, HEAD_RULES, SHELF14, SHELF15, SKEL19, Skeleton,
-                      aggregate_precision_recall, joint_precision_recall, mpjpe, pcp, remap_joints, to_shelf15,
-                      to_shelf15_validity)
+from geometry import (BODY25, COCO17, HEAD_RULES, SHELF14, SHELF15, SKEL19, STRUCTRI17, Skeleton,
+                      aggregate_precision_recall, joint_precision_recall, mpjpe, pcp, remap_joints,
+                      shelf15_conversion_matrix, to_shelf15, to_shelf15_validity)
 from mocap import match_predictions
 
 # Source index of Shelf15 joints 0..11 (4DA's MappingToShelf, JCSAT's BODY25 names, VoxelPose's coco2shelf).
@@ -181,15 +181,15 @@ def test_conversion_matrix_is_the_linear_part_of_to_shelf15():
         shelf15_conversion_matrix(BODY25, "voxelpose_shelf")
 
 
-def test_h36m17_source_takes_neck_nose_and_head():
-    h36m = random_people(np.random.default_rng(8), H36M17, 2)
-    shelf15 = np.asarray(to_shelf15(h36m, H36M17))
-    assert_allclose(shelf15[..., 12, :], h36m[..., H36M17.index("neck_nose"), :])
-    assert_allclose(shelf15[..., 13, :], h36m[..., H36M17.index("head"), :])
+def test_structri17_source_takes_neck_nose_and_head():
+    h36m = random_people(np.random.default_rng(8), STRUCTRI17, 2)
+    shelf15 = np.asarray(to_shelf15(h36m, STRUCTRI17))
+    assert_allclose(shelf15[..., 12, :], h36m[..., STRUCTRI17.index("neck_nose"), :])
+    assert_allclose(shelf15[..., 13, :], h36m[..., STRUCTRI17.index("head"), :])
     assert_allclose(shelf15[..., 14, :], (h36m[..., 2, :] + h36m[..., 3, :]) / 2)
-    assert_allclose(shelf15[..., 6, :], h36m[..., H36M17.index("r_wrist"), :])
+    assert_allclose(shelf15[..., 6, :], h36m[..., STRUCTRI17.index("r_wrist"), :])
     with pytest.raises(KeyError, match="ear"):
-        to_shelf15(h36m, H36M17, "4da")
+        to_shelf15(h36m, STRUCTRI17, "4da")
 
 
 def test_shelf14_and_shelf15_sources():
@@ -213,7 +213,7 @@ def test_degenerate_face_direction_is_finite_like_eigen():
         (COCO17, None, ValueError, "no default head rule"),
         (SHELF14, "4da", ValueError, "head_rule=None"),
         (SKEL19, "bogus", (ValueError, TypeError), "bogus"),  # TypeError: the runtime Literal check in tests
-        (H36M17, "4da", KeyError, "ear"),
+        (STRUCTRI17, "4da", KeyError, "ear"),
     ],
 )
 def test_bad_rule_or_source_raises(source, rule, error, match):

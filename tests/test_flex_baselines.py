@@ -9,13 +9,13 @@ from numpy.testing import assert_allclose, assert_array_equal
 import geometry
 import mocap
 import structri
-from geometry import FLEX20, H36M17
+from geometry import FLEX20, STRUCTRI17
 from flex import DataConfig, baseline_cameras, make_batch, motion_metrics, triangulation_baseline
 
 # Every batch has the same shapes (2 sequences, 4 views, 16 frames), so each kernel compiles once.
 STATIC = DataConfig(views=4, frames=16)
 DYNAMIC = DataConfig(views=4, frames=16, camera_motion="dynamic")
-ROOT = H36M17.index("mid_hip")
+ROOT = STRUCTRI17.index("mid_hip")
 KEY = jax.random.key(7)
 
 
@@ -90,10 +90,10 @@ def test_structural_baseline_is_structri_with_lengths_estimated_through_its_came
     for b in range(2):
         P = geometry.projection_matrix(jax.tree.map(lambda leaf: leaf[b, :, 0], given))  # static: frame 0's
         points, weights = np.swapaxes(noisy.points_2d[b], 0, 1), np.swapaxes(noisy.confidences[b], 0, 1)
-        per_frame = np.stack([structri.estimate_bone_lengths(points[t:t + 1], P, H36M17, weights[t:t + 1])
+        per_frame = np.stack([structri.estimate_bone_lengths(points[t:t + 1], P, STRUCTRI17, weights[t:t + 1])
                               for t in range(points.shape[0])])
         lengths = np.median(per_frame[np.all(per_frame > 0, axis=1)], axis=0)
-        pose = structri.structural_triangulation(points, P, lengths, H36M17, weights).pose
+        pose = structri.structural_triangulation(points, P, lengths, STRUCTRI17, weights).pose
         expected = np.einsum("ktij,tnj->ktni", given.R[b], pose - pose[:, ROOT:ROOT + 1])
         determined = np.sum(weights > 0, axis=1) >= 2  # (T, 17)
         determined = (determined & determined[:, ROOT:ROOT + 1])[None, :, :, None]  # not filled
@@ -104,7 +104,7 @@ def test_structural_baseline_is_structri_with_lengths_estimated_through_its_came
 def test_structural_bone_lengths_ignore_a_few_outlier_frames(perfect):
     """Gross detector outliers at 3 of 16 frames: a mean of the per-frame lengths would put a wrong shin on every
     frame; with the median the clean frames keep the solution without outliers."""
-    ankle, outliers = H36M17.index("l_ankle"), [2, 7, 11]
+    ankle, outliers = STRUCTRI17.index("l_ankle"), [2, 7, 11]
     points = np.array(perfect.points_2d)
     points[:, 0, outliers, ankle] += 400.0  # pixels, in view 0
     pred = np.asarray(triangulation_baseline(perfect._replace(points_2d=points), "structural"))
@@ -116,7 +116,7 @@ def test_structural_bone_lengths_ignore_a_few_outlier_frames(perfect):
 
 @pytest.mark.parametrize("method", ["dlt", "structural"])
 def test_joints_seen_in_fewer_than_two_views_take_the_nearest_determined_offset(perfect, method):
-    wrist, head = H36M17.index("l_wrist"), H36M17.index("head")
+    wrist, head = STRUCTRI17.index("l_wrist"), STRUCTRI17.index("head")
     confidences = np.array(perfect.confidences)
     confidences[:, 1:, [0, 5, 6], wrist] = 0.0  # one view left at frames 0, 5 and 6
     confidences[:, :, :, head] = 0.0  # never seen
@@ -147,11 +147,11 @@ def test_metrics_equal_a_hand_computation():
     acceleration = offsets[:-2] - 2 * offsets[1:-1] + offsets[2:]
     assert_allclose(metrics.acceleration_error, 1000 * np.mean(np.linalg.norm(acceleration, axis=-1) / 17) / 2,
                     rtol=1e-12)
-    parents, children = np.array(H36M17.bones).T
+    parents, children = np.array(STRUCTRI17.bones).T
     lengths = np.linalg.norm(pred[..., children, :] - pred[..., parents, :], axis=-1)  # (1, 2, 4, 16)
     assert_allclose(metrics.mbls, 1000 * np.mean(np.sqrt(np.mean(np.var(lengths, axis=2), axis=-1))), rtol=1e-12)
-    # FLEX's FLEX20 output is scored on its 17 H36M17 joints.
-    flex20 = motion_metrics(geometry.flex20_from_h36m17(pred), gt, FLEX20)
+    # FLEX's FLEX20 output is scored on its 17 STRUCTRI17 joints.
+    flex20 = motion_metrics(geometry.flex20_from_structri17(pred), gt, FLEX20)
     for value, expected in zip(flex20, metrics):
         assert_allclose(value, expected, rtol=1e-12)
     assert_array_equal(motion_metrics(gt, gt)[:2], (0.0, 0.0))

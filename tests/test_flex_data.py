@@ -7,7 +7,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 import geometry
-from geometry import FLEX20, FLEX20_ROTATING, H36M17
+from geometry import FLEX20, FLEX20_ROTATING, STRUCTRI17
 from flex import (
     DataConfig, flex_forward_kinematics, local_rotations, make_batch, make_sample, normalise_2d, sign_continuous,
     symmetric_bone_lengths,
@@ -53,7 +53,7 @@ def test_shapes_and_ranges(static_batch):
     assert 0.5 < np.mean(static_batch.confidences > 0) < 1.0  # the detector misses some joints, not most
     assert np.all(static_batch.points_2d[static_batch.confidences == 0] == 0)
     assert set(np.unique(static_batch.contacts)) <= {0.0, 1.0}
-    assert_allclose(static_batch.joints[..., H36M17.index("mid_hip"), :], 0.0)
+    assert_allclose(static_batch.joints[..., STRUCTRI17.index("mid_hip"), :], 0.0)
     assert np.all(static_batch.root_position[..., 2] > 0)
     assert np.all((static_batch.bone_lengths > 0.03) & (static_batch.bone_lengths < 0.6))
     assert_allclose(np.linalg.norm(static_batch.rotations, axis=-1), 1.0, atol=1e-12)
@@ -63,7 +63,7 @@ def test_root_target_is_the_detected_root_at_the_normalised_depth(static_batch):
     """The camera model of flex._model: the root target is ``(x d, y d, d)`` with ``(x, y)`` the root's normalised
     image position (near the detection) and ``d`` the metric depth times scale / focal length."""
     cameras = static_batch.cameras
-    root = H36M17.index("mid_hip")
+    root = STRUCTRI17.index("mid_hip")
     normalised = normalise_2d(static_batch.points_2d, static_batch.confidences, root)
     scale = np.asarray(normalised.scale)[..., None]  # (B, K, 1)
     metric_depth = static_batch.root_position[..., 2] * cameras.K[..., 0, 0] / scale
@@ -90,7 +90,7 @@ def test_ground_truth_rotations_reproduce_the_poses(static_batch, dynamic_batch)
     left/right asymmetry (millimetres), for static and moving cameras."""
     for batch in (static_batch, dynamic_batch):
         poses = flex_forward_kinematics(batch.bone_lengths, batch.rotations, batch.root_rotations)
-        error = np.linalg.norm(geometry.remap_joints(poses, FLEX20, H36M17) - batch.joints, axis=-1)
+        error = np.linalg.norm(geometry.remap_joints(poses, FLEX20, STRUCTRI17) - batch.joints, axis=-1)
         assert error.mean() < 0.005 and error.max() < 0.02
         # Sign-continuous quaternions: no jump between frames.
         assert np.all(np.sum(batch.rotations[:, 1:] * batch.rotations[:, :-1], axis=-1) > 0)
@@ -100,7 +100,7 @@ def test_ground_truth_rotations_reproduce_the_poses(static_batch, dynamic_batch)
 @pytest.mark.parametrize("rest_pose", ["totem", "tpose"])
 def test_local_rotations_are_exact_with_the_joints_own_bone_lengths(rest_pose):
     h36m = make_sample(jax.random.key(4), CONFIG).joints[0]  # (T, 17, 3): a real motion, camera frame
-    joints = np.asarray(geometry.flex20_from_h36m17(h36m))
+    joints = np.asarray(geometry.flex20_from_structri17(h36m))
     local = np.asarray(local_rotations(joints, rest_pose))
     assert_allclose(np.einsum("...ij,...kj->...ik", local, local), np.broadcast_to(np.eye(3), local.shape), atol=1e-9)
     assert_allclose(np.linalg.det(local), 1.0, atol=1e-9)
@@ -114,7 +114,7 @@ def test_local_rotations_are_exact_with_the_joints_own_bone_lengths(rest_pose):
 
 
 def test_symmetric_bone_lengths_average_left_and_right():
-    joints = np.asarray(geometry.flex20_from_h36m17(np.random.default_rng(0).normal(size=(17, 3))))
+    joints = np.asarray(geometry.flex20_from_structri17(np.random.default_rng(0).normal(size=(17, 3))))
     lengths = np.asarray(geometry.bone_lengths(joints, FLEX20))
     bones = np.asarray(symmetric_bone_lengths(joints))
     j = FLEX20.index
@@ -127,7 +127,7 @@ def test_normalisation_ignores_each_views_shift_and_scale(static_batch):
     """Another focal length, principal point or image size changes a view's pixels by a shift and an isotropic
     scale; the normalised input must not change (only its centre and scale do)."""
     points, confidences = static_batch.points_2d, static_batch.confidences
-    root = H36M17.index("mid_hip")
+    root = STRUCTRI17.index("mid_hip")
     base = normalise_2d(points, confidences, root)
     rng = np.random.default_rng(0)
     for _ in range(5):
@@ -170,8 +170,8 @@ def test_config_validation():
 def test_flex20_skeleton_data():
     assert list(FLEX20.parents) == [-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 9, 10, 8, 12, 13, 14, 8, 16, 17, 18]
     x = jnp.arange(17 * 3.0).reshape(17, 3)
-    flex20 = geometry.flex20_from_h36m17(x)
-    assert_array_equal(geometry.remap_joints(flex20, FLEX20, H36M17), x)
+    flex20 = geometry.flex20_from_structri17(x)
+    assert_array_equal(geometry.remap_joints(flex20, FLEX20, STRUCTRI17), x)
     for duplicate, original in geometry.FLEX20_DUPLICATE_OF.items():
         assert_array_equal(flex20[FLEX20.index(duplicate)], flex20[FLEX20.index(original)])
 

@@ -1,9 +1,11 @@
 """Guards against the jaxlib 0.10.2 CPU miscompilation of jitted broadcast-multiply-reduce code.
 
 jaxlib 0.10.2 routes some jitted reductions to its new YNNPACK fusion and returns wrong numbers,
-with no error, once the batch is larger than about 10k (jax-ml/jax#39103). The project disables that fusion with
-``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=``, set by importing ``geometry``
-(geometry/_jax_guard.py), and excludes the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
+with no error, once the batch is larger than about 10k (jax-ml/jax#39103; notes in
+/work/shared/specs/jax_notes.md, section 1). The project disables that fusion with
+``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=``, set explicitly by ``geometry.disable_faulty_cpu_fusion()``
+(geometry/_jax_guard.py; tests/conftest.py calls it), refuses 0.10.2 without it at ``import geometry``, and excludes
+the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
 """
 
 import os
@@ -33,6 +35,15 @@ sys.exit(0 if error < 1e-4 else 1)
 """
 
 
+def _without_workaround() -> dict[str, str]:
+    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
+    return {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+
+
+def _run(code: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+
+
 def broadcast_multiply_reduce_error() -> float:
     a = np.random.default_rng(0).uniform(size=(4, 4, 100_000)).astype(np.float32)
     jitted = jax.jit(lambda a: (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0))(a)
@@ -46,19 +57,49 @@ def test_installed_jaxlib_has_no_ynn_fusion_miscompilation():
     project entry point) already runs with it, which would hide the bug. A subprocess with the flag
     removed from its environment therefore tests the installed jaxlib itself: it fails on 0.10.2
     (every element wrong, max error ~35) and passes on 0.10.1."""
-    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
-    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
-    done = subprocess.run([sys.executable, "-c", REPRO], env=env, capture_output=True, text=True, timeout=120)
+    done = _run(REPRO, _without_workaround())
     assert done.returncode == 0, f"installed jaxlib miscompiles the repro without {WORKAROUND}:\n{done.stdout}{done.stderr}"
 
 
-def test_importing_geometry_sets_the_workaround_before_jax_computes():
-    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
-    code = "import os, geometry; print(os.environ['XLA_FLAGS'])"
-    done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "XLA_FLAGS": flags},
-                          capture_output=True, text=True, timeout=120)
+def test_importing_geometry_leaves_xla_flags_alone():
+    env = _without_workaround()
+    done = _run("import os, geometry; print(repr(os.environ['XLA_FLAGS']))", env)
     assert done.returncode == 0, done.stderr
-    assert WORKAROUND in done.stdout.split()
+    assert done.stdout.strip() == repr(env["XLA_FLAGS"])
+
+
+def test_disable_faulty_cpu_fusion_sets_the_flag_only_before_jax_computes():
+    before = ("import os, geometry; print(geometry.disable_faulty_cpu_fusion(), "
+              "os.environ['XLA_FLAGS'].split()[-1])")
+    done = _run(before, _without_workaround())
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["True", WORKAROUND]
+    # Too late once jax has computed: the call says so and changes nothing.
+    after = ("import os, jax.numpy as jnp, geometry; jnp.ones(2).sum().block_until_ready(); "
+             "print(geometry.disable_faulty_cpu_fusion(), repr(os.environ['XLA_FLAGS']))")
+    env = _without_workaround()
+    done = _run(after, env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["False", repr(env["XLA_FLAGS"])]
+
+
+# Pretends jaxlib 0.10.2 is installed, then imports geometry.
+_AS_IF_FAULTY_JAXLIB = """
+import importlib.metadata as metadata
+installed = metadata.version
+metadata.version = lambda name: "0.10.2" if name == "jaxlib" else installed(name)
+import geometry
+"""
+
+
+def test_geometry_refuses_faulty_jaxlib_without_the_flag():
+    done = _run(_AS_IF_FAULTY_JAXLIB, _without_workaround())
+    assert done.returncode != 0
+    last_line = done.stderr.strip().splitlines()[-1]
+    assert last_line.startswith("ImportError: jaxlib 0.10.2 miscompiles") and f"XLA_FLAGS={WORKAROUND}" in last_line
+    env = _without_workaround()
+    env["XLA_FLAGS"] = f"{env['XLA_FLAGS']} {WORKAROUND}"
+    assert _run(_AS_IF_FAULTY_JAXLIB, env).returncode == 0
 
 
 def test_repro_is_exact_with_the_project_configuration():

@@ -15,7 +15,7 @@ import geometry as g
 # the package star-import currently lets win; test this module's one until the two are merged.
 from geometry._kinematics import bone_lengths
 
-TREES = [g.H36M17, g.SMPL24]
+TREES = [g.STRUCTRI17, g.SMPL24]
 
 
 def _numpy_fk(local_rotations, offsets, root_position, parents):
@@ -56,14 +56,14 @@ def test_fk_matches_numpy_reference(skeleton):
         assert_allclose(np.asarray(global_rotations[f]), ref_rot, atol=1e-14)
 
 
-def test_h36m17_has_parents_after_children_and_fk_still_visits_them_first():
-    parents = g.H36M17.parents
+def test_structri17_has_parents_after_children_and_fk_still_visits_them_first():
+    parents = g.STRUCTRI17.parents
     assert parents == (-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8)
     assert any(p > c for c, p in enumerate(parents))
-    rotations, offsets, root = _random_pose(g.H36M17, 1)
+    rotations, offsets, root = _random_pose(g.STRUCTRI17, 1)
     # Index-order accumulation would read the unset parent of joint 1 (joint 2); the tuple and the
     # Skeleton must both give the recursive reference.
-    for tree in (parents, g.H36M17):
+    for tree in (parents, g.STRUCTRI17):
         positions, _ = g.forward_kinematics(rotations, offsets, root, tree)
         assert_allclose(np.asarray(positions), _numpy_fk(rotations, offsets, root, parents)[0], atol=1e-14)
 
@@ -99,14 +99,14 @@ def test_fk_bone_vectors_are_parent_rotated_offsets():
 
 
 def test_fk_broadcasts_unbatched_offsets_and_root():
-    rotations, offsets, root = _random_pose(g.H36M17, 4, frames=5)
+    rotations, offsets, root = _random_pose(g.STRUCTRI17, 4, frames=5)
     roots = np.random.default_rng(5).normal(size=(5, 3))
-    positions, rots = g.forward_kinematics(rotations, offsets, roots, g.H36M17)
+    positions, rots = g.forward_kinematics(rotations, offsets, roots, g.STRUCTRI17)
     assert positions.shape == (5, 17, 3) and rots.shape == (5, 17, 3, 3)
-    full, _ = g.forward_kinematics(rotations, np.broadcast_to(offsets, (5, 17, 3)), roots, g.H36M17)
+    full, _ = g.forward_kinematics(rotations, np.broadcast_to(offsets, (5, 17, 3)), roots, g.STRUCTRI17)
     assert_allclose(np.asarray(positions), np.asarray(full), atol=0)
     # One pose for many roots: the rotations broadcast too.
-    moved, _ = g.forward_kinematics(rotations[0], offsets, roots, g.H36M17)
+    moved, _ = g.forward_kinematics(rotations[0], offsets, roots, g.STRUCTRI17)
     assert_allclose(np.asarray(moved - moved[:, :1]), np.broadcast_to(positions[0] - positions[0, :1], (5, 17, 3)),
                     atol=1e-14)
 
@@ -141,38 +141,38 @@ def test_bone_matrices_invert_each_other_and_match_bone_vectors(skeleton):
     assert_allclose(stacked[3:].reshape(-1, 3), np.asarray(g.bone_vectors(joints, skeleton)), atol=1e-15)
 
 
-def test_h36m17_bone_matrix_is_structural_triangulation_layout():
+def test_structri17_bone_matrix_is_structural_triangulation_layout():
     # ST's conv_J2B: block 0 is x_0, block k >= 1 is x_k - x_parent(k).
-    parents = g.H36M17.parents
+    parents = g.STRUCTRI17.parents
     expected = np.zeros((17, 17))
     expected[0, 0] = 1.0
     for k in range(1, 17):
         expected[k, k], expected[k, parents[k]] = 1.0, -1.0
-    assert_allclose(g.joints_to_bones_matrix(g.H36M17), np.kron(expected, np.eye(3)), atol=0)
+    assert_allclose(g.joints_to_bones_matrix(g.STRUCTRI17), np.kron(expected, np.eye(3)), atol=0)
 
 
 def test_joints_from_bones_inverts_bone_vectors_and_agrees_with_fk():
-    rotations, offsets, root = _random_pose(g.H36M17, 9, frames=3)
-    positions, _ = g.forward_kinematics(rotations, offsets, root, g.H36M17)
-    bones = g.bone_vectors(positions, g.H36M17)
+    rotations, offsets, root = _random_pose(g.STRUCTRI17, 9, frames=3)
+    positions, _ = g.forward_kinematics(rotations, offsets, root, g.STRUCTRI17)
+    bones = g.bone_vectors(positions, g.STRUCTRI17)
     assert bones.shape == (3, 16, 3)
-    assert_allclose(np.asarray(g.joints_from_bones(root, bones, g.H36M17)), np.asarray(positions), atol=1e-14)
+    assert_allclose(np.asarray(g.joints_from_bones(root, bones, g.STRUCTRI17)), np.asarray(positions), atol=1e-14)
     flat = np.concatenate([np.broadcast_to(root, (3, 1, 3)), np.asarray(bones)], axis=1).reshape(3, -1)
-    via_matrix = flat @ g.bones_to_joints_matrix(g.H36M17).T
+    via_matrix = flat @ g.bones_to_joints_matrix(g.STRUCTRI17).T
     assert_allclose(via_matrix.reshape(3, 17, 3), np.asarray(positions), atol=1e-14)
 
 
 def test_bone_lengths_gradient_is_finite_for_zero_length_bones():
     joints = jnp.zeros((17, 3))
-    grad = jax.grad(lambda x: jnp.sum(bone_lengths(x, g.H36M17)))(joints)
+    grad = jax.grad(lambda x: jnp.sum(bone_lengths(x, g.STRUCTRI17)))(joints)
     assert np.isfinite(np.asarray(grad)).all()
 
 
 def test_bad_inputs_raise_clear_errors():
-    rotations, offsets, root = _random_pose(g.H36M17, 10)
+    rotations, offsets, root = _random_pose(g.STRUCTRI17, 10)
     with pytest.raises(ValueError, match=r"SMPL24 \(24 joints\), got \(17, 3, 3\)"):
         g.forward_kinematics(rotations, offsets, root, g.SMPL24)
     with pytest.raises(ValueError, match="tree|parent"):
         g.forward_kinematics(rotations[:3], offsets[:3], root, (-1, 2, 1))
     with pytest.raises(ValueError, match="joints must have shape"):
-        g.bone_vectors(np.zeros((24, 3)), g.H36M17)
+        g.bone_vectors(np.zeros((24, 3)), g.STRUCTRI17)

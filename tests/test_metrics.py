@@ -13,7 +13,7 @@ from numpy.testing import assert_allclose
 from scipy.linalg import orthogonal_procrustes
 from scipy.spatial.transform import Rotation
 
-from geometry import (H36M17, SHELF15, Skeleton, acceleration_error, aggregate_precision_recall, bone_lengths,
+from geometry import (SHELF15, STRUCTRI17, Skeleton, acceleration_error, aggregate_precision_recall, bone_lengths,
                       joint_precision_recall, mbls, mpble, mpjpe, mpjpe_root_relative, pa_mpjpe, pck_2d, pck_3d,
                       pcp, pib, similarity_procrustes)
 
@@ -256,20 +256,20 @@ def test_bone_metrics_match_structural_triangulation_formulas():
     """The formulas of Structural Triangulation's test.py (MEBLE, MBLS with np.var, PIB strict)."""
     rng = np.random.default_rng(13)
     seq = rng.normal(size=(30, 17, 3))
-    parents = H36M17.parents
+    parents = STRUCTRI17.parents
     lengths = np.stack([np.linalg.norm(seq[:, k + 1] - seq[:, parents[k + 1]], axis=-1) for k in range(16)], -1)
     reference = lengths.mean(0) * rng.uniform(0.8, 1.2, size=16)
-    assert_allclose(np.mean(mpble(seq, H36M17, reference)), np.mean(np.abs(lengths - reference)))
-    assert_allclose(mbls(seq, H36M17), np.sqrt(np.mean(np.var(lengths, axis=0))))
+    assert_allclose(np.mean(mpble(seq, STRUCTRI17, reference)), np.mean(np.abs(lengths - reference)))
+    assert_allclose(mbls(seq, STRUCTRI17), np.sqrt(np.mean(np.var(lengths, axis=0))))
     inlier = (lengths > 0.8 * reference) & (lengths < 1.2 * reference)
-    assert_allclose(np.mean(pib(seq, H36M17, reference)), inlier.sum() / (30 * 16))
+    assert_allclose(np.mean(pib(seq, STRUCTRI17, reference)), inlier.sum() / (30 * 16))
 
 
 def test_bone_metric_shape_errors():
     with pytest.raises(ValueError, match="17, 3"):
-        bone_lengths(np.zeros((15, 3)), H36M17)
+        bone_lengths(np.zeros((15, 3)), STRUCTRI17)
     with pytest.raises(ValueError, match="16 bones"):
-        mpble(np.zeros((17, 3)), H36M17, np.ones(15))
+        mpble(np.zeros((17, 3)), STRUCTRI17, np.ones(15))
 
 
 # --- acceleration --------------------------------------------------------------------------------
@@ -346,8 +346,8 @@ def test_jit_equals_eager():
     mask = np.random.default_rng(17).random((4, 8, 17)) > 0.2
     cases = [
         (pa_mpjpe, (pred, gt, mask)),
-        (partial(pcp, skeleton=H36M17, strict=True), (pred, gt)),
-        (lambda p: mbls(p, H36M17), (pred,)),
+        (partial(pcp, skeleton=STRUCTRI17, strict=True), (pred, gt)),
+        (lambda p: mbls(p, STRUCTRI17), (pred,)),
         (acceleration_error, (pred, gt, mask[..., 0])),
         (lambda p, g: aggregate_precision_recall(joint_precision_recall(p, g, 1.5)), (pred, gt)),
     ]

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import mocap
-from geometry import BODY25, H36M17, SHELF14, SHELF15
+from geometry import BODY25, SHELF14, SHELF15, STRUCTRI17
 
 CMU_UNIT = 0.0254 / 0.45
 
@@ -48,8 +48,8 @@ def _bone_lengths(motion: mocap.Motion) -> np.ndarray:
 
 def _check_anatomy(motion: mocap.Motion, femur=(0.35, 0.5)):
     """Plausible bones, z up, left joints on the person's left (the root's rest x axis)."""
-    h = mocap.motion_joint_positions(motion, H36M17)
-    j = H36M17.index
+    h = mocap.motion_joint_positions(motion, STRUCTRI17)
+    j = STRUCTRI17.index
     femur_length = np.linalg.norm(h[:, j("r_hip")] - h[:, j("r_knee")], axis=-1)
     assert femur[0] < femur_length.mean() < femur[1]
     for a, b, lo, hi in (("r_knee", "r_ankle", 0.35, 0.5), ("r_shoulder", "r_elbow", 0.22, 0.36),
@@ -356,7 +356,7 @@ def test_unknown_rig_has_no_mapping(tmp_path):
     motion = mocap.read_bvh(_write(tmp_path / "t.bvh", BVH.splitlines()), 0.01)
     assert motion.rig == "unknown"
     with pytest.raises(ValueError, match="unknown rig"):
-        mocap.motion_joint_positions(motion, H36M17)
+        mocap.motion_joint_positions(motion, STRUCTRI17)
 
 
 def test_procedural_motion_anatomy():
@@ -364,5 +364,5 @@ def test_procedural_motion_anatomy():
     lengths = _bone_lengths(motion)
     np.testing.assert_allclose(lengths, lengths[:1].repeat(len(lengths), 0), atol=1e-9)
     _check_anatomy(motion)
-    head = mocap.motion_joint_positions(motion, H36M17)[:, H36M17.index("head"), 2]
+    head = mocap.motion_joint_positions(motion, STRUCTRI17)[:, STRUCTRI17.index("head"), 2]
     assert np.all((1.5 < head) & (head < 2.0))

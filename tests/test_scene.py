@@ -30,7 +30,7 @@ def test_same_key_same_scene_different_key_different(scene):
 
 def test_shapes_and_ground_truth(scene):
     n_f, n_v, n_p = 60, RIG.num_views, 4
-    assert scene.body25.shape == (n_f, n_p, 25, 3) and scene.h36m17.shape == (n_f, n_p, 17, 3)
+    assert scene.body25.shape == (n_f, n_p, 25, 3) and scene.structri17.shape == (n_f, n_p, 17, 3)
     assert scene.shelf15.shape == (n_f, n_p, 15, 3)
     assert scene.body25_pixels.shape == (n_f, n_v, n_p, 25, 2) and scene.visible.shape == (n_f, n_v, n_p, 25)
     assert scene.shelf15_pixels.shape == (n_f, n_v, n_p, 15, 2)
@@ -40,9 +40,9 @@ def test_shapes_and_ground_truth(scene):
     z = scene.body25[..., 2]
     assert -0.1 < z.min() and np.all(z[..., BODY25.index("nose")] > z[..., HIP])
     assert np.median(z[..., BODY25.index("nose")]) > 1.3
-    # the SHELF15 mid-hip is the centre of the H36M17 hips; BODY25 and H36M17 come from one motion
-    np.testing.assert_allclose(scene.shelf15[..., 14, :], scene.h36m17[..., [2, 3], :].mean(-2), atol=1e-12)
-    np.testing.assert_allclose(scene.body25[..., HIP, :], scene.h36m17[..., 0, :], atol=0.15)
+    # the SHELF15 mid-hip is the centre of the STRUCTRI17 hips; BODY25 and STRUCTRI17 come from one motion
+    np.testing.assert_allclose(scene.shelf15[..., 14, :], scene.structri17[..., [2, 3], :].mean(-2), atol=1e-12)
+    np.testing.assert_allclose(scene.body25[..., HIP, :], scene.structri17[..., 0, :], atol=0.15)
     # projections agree with geometry.project for one view
     np.testing.assert_allclose(scene.body25_pixels[:, 2], np.asarray(geometry.project(RIG.select(2), scene.body25)),
                                atol=1e-6)

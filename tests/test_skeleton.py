@@ -4,7 +4,7 @@ import re
 
 import pytest
 
-from geometry import BODY25, COCO17, H36M17, SHELF14, SHELF15, SKEL19, SKELETONS, SMPL24, Skeleton
+from geometry import BODY25, COCO17, SHELF14, SHELF15, SKEL19, SKELETONS, SMPL24, STRUCTRI17, Skeleton
 
 # Written out from the sources (OpenPose output doc, COCO keypoints, 4DA skel.h, Shelf ReadMe, SMPL
 # kintree_table, Structural Triangulation's PARENT), not derived from geometry/_skeleton.py.
@@ -16,14 +16,14 @@ COCO17_ORDER = ["nose", "l_eye", "r_eye", "l_ear", "r_ear", "l_shoulder", "r_sho
 SKEL19_ORDER = ["mid_hip", "neck", "r_hip", "l_hip", "nose", "r_shoulder", "l_shoulder", "r_knee", "l_knee",
                 "r_ear", "l_ear", "r_elbow", "l_elbow", "r_ankle", "l_ankle", "r_wrist", "l_wrist",
                 "l_big_toe", "r_big_toe"]
-H36M17_PARENTS = [-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]
+STRUCTRI17_PARENTS = [-1, 2, 0, 0, 3, 4, 1, 0, 7, 16, 11, 12, 8, 8, 13, 14, 8]
 SMPL24_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
 ALL = list(SKELETONS.values())
 
 
 def test_registry_and_counts():
     assert {name: s.num_joints for name, s in SKELETONS.items()} == {
-        "BODY25": 25, "COCO17": 17, "SHELF14": 14, "SHELF15": 15, "SKEL19": 19, "H36M17": 17, "SMPL24": 24,
+        "BODY25": 25, "COCO17": 17, "SHELF14": 14, "SHELF15": 15, "SKEL19": 19, "STRUCTRI17": 17, "SMPL24": 24,
         "FLEX20": 20}
     assert all(SKELETONS[s.name] is s for s in ALL)
 
@@ -33,9 +33,9 @@ def test_documented_orders():
     assert list(COCO17.joints) == COCO17_ORDER
     assert list(SKEL19.joints) == SKEL19_ORDER
     assert list(SHELF15.joints) == list(SHELF14.joints) + ["mid_hip"]
-    assert list(H36M17.parents) == H36M17_PARENTS
+    assert list(STRUCTRI17.parents) == STRUCTRI17_PARENTS
     assert list(SMPL24.parents) == SMPL24_PARENTS
-    assert H36M17.joints[:4] == ("mid_hip", "r_knee", "r_hip", "l_hip") and H36M17.joints[16] == "neck_nose"
+    assert STRUCTRI17.joints[:4] == ("mid_hip", "r_knee", "r_hip", "l_hip") and STRUCTRI17.joints[16] == "neck_nose"
     assert SMPL24.joints[15] == "head" and SMPL24.joints[22:] == ("l_hand", "r_hand")
 
 

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from geometry import H36M17, Skeleton, bone_lengths, structri_virtual_rig
+from geometry import STRUCTRI17, Skeleton, bone_lengths, structri_virtual_rig
 from experiments.structri_study import VirtualConfig, run_virtual
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
                       lem_triangulation, ls_triangulation, reduced_objective, reduced_problem,
@@ -22,16 +22,17 @@ _DIRECTION = {"r_hip": (-1, 0, 0), "l_hip": (1, 0, 0), "r_knee": (0, -1, 0), "l_
               "r_ankle": (0, -1, 0), "l_ankle": (0, -1, 0), "spine": (0, 1, 0), "thorax": (0, 1, 0),
               "neck_nose": (0, 1, 0), "head": (0, 1, 0), "r_shoulder": (-1, 0, 0), "l_shoulder": (1, 0, 0),
               "r_elbow": (-1, -0.3, 0), "l_elbow": (1, -0.3, 0), "r_wrist": (-1, -0.3, 0.2), "l_wrist": (1, -0.3, 0.2)}
-LENGTHS = np.array([_LENGTH[H36M17.joints[c]] for _, c in H36M17.bones])
+LENGTHS = np.array([_LENGTH[STRUCTRI17.joints[c]] for _, c in STRUCTRI17.bones])
 
 
 def synthetic_poses(frames, rng, root_spread=0.05):
     """y-up poses around a T-pose with exact constant bone lengths, pelvis near the origin (metres)."""
-    poses = np.zeros((frames, H36M17.num_joints, 3))
+    poses = np.zeros((frames, STRUCTRI17.num_joints, 3))
     poses[:, 0] = rng.normal(scale=root_spread, size=(frames, 3))
-    for j in H36M17.topological_order[1:]:
-        d = np.array(_DIRECTION[H36M17.joints[j]], float) + 0.4 * rng.normal(size=(frames, 3))
-        poses[:, j] = poses[:, H36M17.parents[j]] + _LENGTH[H36M17.joints[j]] * d / np.linalg.norm(d, axis=1, keepdims=True)
+    for j in STRUCTRI17.topological_order[1:]:
+        d = np.array(_DIRECTION[STRUCTRI17.joints[j]], float) + 0.4 * rng.normal(size=(frames, 3))
+        unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+        poses[:, j] = poses[:, STRUCTRI17.parents[j]] + _LENGTH[STRUCTRI17.joints[j]] * unit
     return poses
 
 
@@ -124,7 +125,8 @@ def test_bone_length_error_at_two_pixels():
     points, P = observe(virtual_rig(4, "round"), poses, 2.0, rng)
     st = structural_triangulation(points, P, LENGTHS)
     assert np.max(np.abs(np.linalg.norm(np.asarray(st.bones), axis=-1) - LENGTHS)) < 0.5e-3
-    np.testing.assert_allclose(bone_lengths(st.pose, H36M17), np.linalg.norm(np.asarray(st.bones), axis=-1), atol=1e-12)
+    np.testing.assert_allclose(bone_lengths(st.pose, STRUCTRI17), np.linalg.norm(np.asarray(st.bones), axis=-1),
+                               atol=1e-12)
 
 
 def test_against_certified_reference(scene):
@@ -172,9 +174,9 @@ def test_schedules_and_single_step_agree_at_one_step(scene):
 
 def test_estimated_lengths_symmetric(scene):
     _, _, points, P = scene
-    est = np.asarray(estimate_bone_lengths(points, P, H36M17, frames=np.arange(12)))
-    for k, (_, child) in enumerate(H36M17.bones):
-        mirror = [i for i, (_, c) in enumerate(H36M17.bones) if c == H36M17.mirror[child]][0]
+    est = np.asarray(estimate_bone_lengths(points, P, STRUCTRI17, frames=np.arange(12)))
+    for k, (_, child) in enumerate(STRUCTRI17.bones):
+        mirror = [i for i, (_, c) in enumerate(STRUCTRI17.bones) if c == STRUCTRI17.mirror[child]][0]
         assert est[k] == pytest.approx(est[mirror], rel=1e-12)
     np.testing.assert_allclose(est, LENGTHS, rtol=0.15)
 
@@ -221,7 +223,7 @@ def test_gross_outliers_fall_back_to_ls_instead_of_metre_long_bones(scene):
     and return LS; the clean frames keep ST's solution."""
     _, _, points, P = scene
     points = points.copy()
-    points[::2, :2, H36M17.index("head")] += np.array([800.0, -800.0])[:, None]  # every other frame
+    points[::2, :2, STRUCTRI17.index("head")] += np.array([800.0, -800.0])[:, None]  # every other frame
     unchecked = structural_triangulation(points, P, LENGTHS, max_length_error=float("inf"))
     assert np.all(np.asarray(unchecked.status) == Status.OK)
     assert np.max(np.linalg.norm(np.asarray(unchecked.bones)[::2], axis=-1) / LENGTHS) > 10.0

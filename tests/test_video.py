@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from geometry import BODY25, H36M17, SMPL24, Camera, body_forward, stand_in_body_model
+from geometry import BODY25, SMPL24, STRUCTRI17, Camera, body_forward, stand_in_body_model
 from mocap import (BodyMotion, VideoConfig, flip_video, jitter_boxes, load_clip, rasterise, render_people,
                    retarget_clip, synthesise_video)
 
@@ -81,7 +81,7 @@ def test_retarget_reproduces_the_clips_bone_directions(run):
                                 for s in "lr"])
     hips, model_hips = 0.5 * (body("l_hip") + body("r_hip")), 0.5 * (smpl("l_hip") + smpl("r_hip"))
     errors["spine"] = angle_degrees(smpl("neck") - model_hips,
-                                    clip.h36m17[0, :, H36M17.index("thorax")] - hips).mean()
+                                    clip.structri17[0, :, STRUCTRI17.index("thorax")] - hips).mean()
     # Each limb's bone is matched exactly (its twist references are perpendicular to it); the spine only through
     # interpolated targets.
     assert max(errors[bone] for bone in ("thigh", "shin", "upper arm", "forearm")) < 0.01, errors
@@ -142,7 +142,7 @@ def test_retarget_betas_and_bad_input(run):
     with pytest.raises(ValueError, match=r"need body25 \(P, T, 25, 3\)"):
         retarget_clip(clip._replace(body25=clip.body25[..., :24, :]), MODEL)
     with pytest.raises(ValueError, match="same non-zero people and frame counts"):
-        retarget_clip(clip._replace(h36m17=clip.h36m17[:, :10]), MODEL)
+        retarget_clip(clip._replace(structri17=clip.structri17[:, :10]), MODEL)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -10,6 +10,8 @@
 - :func:`dropout`: inverted dropout driven by an explicit key (``None``: inference).
 """
 
+from importlib.metadata import version as _version
+
 from ._layers import dropout as dropout
 from ._loop import data_parallel_shardings as data_parallel_shardings
 from ._loop import run_training as run_training
@@ -17,4 +19,4 @@ from ._loop import to_jsonable as to_jsonable
 from ._store import load_model_state as load_model_state
 from ._store import save_model as save_model
 
-__all__ = ["data_parallel_shardings", "dropout", "load_model_state", "run_training", "save_model", "to_jsonable"]
+__version__ = _version("mvmocap")

@@ -38,7 +38,7 @@ from matplotlib.figure import Figure
 import mocap
 from flex import (CONFIGS, MAIN_MODEL, MODELS, TEST_CLIPS, Batch, DataConfig, Flex, TrainConfig, averaged_monocular,
                   load_flex, make_batch, motion_metrics, train, triangulation_baseline)
-from geometry import FLEX20, H36M17, remap_joints
+from geometry import FLEX20, STRUCTRI17, remap_joints
 
 __all__ = ["ExperimentConfig", "plot_camera_poses", "run_experiment", "train_models"]
 
@@ -168,7 +168,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
                                                   n_steps=config.n_steps)
                     predictions[motion, source, f"{label}, {name}"] = pred
                     add(rows, {"camera_motion": motion, "input_2d": source, "method": label, "calibration": name,
-                               **_metrics(pred, batch.joints, H36M17)})
+                               **_metrics(pred, batch.joints, STRUCTRI17)})
         batch = batches[motion, "detected"]
         for name, (views, fusion) in MODELS.items():
             if fusion == "late" or name not in models:
@@ -183,7 +183,7 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
                    ("early fusion (FLEX)", MAIN_MODEL, lambda: predictions[motion, "detected", "FLEX"])]
         for variant, pred in ((variant, predict()) for variant, name, predict in fusions if name in models):
             add(ablations, {"camera_motion": motion, "ablation": "fusion", "variant": variant,
-                            **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else H36M17)})
+                            **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else STRUCTRI17)})
 
     results = {
         "config": dataclasses.asdict(config),
@@ -227,7 +227,7 @@ def _markdown(results: dict) -> str:
 def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int, ...], frames: ArrayLike,
                       title: str = ""):
     """A matplotlib figure of camera-frame poses, front view (x right, y up on the page): one row per view, one
-    column per frame. ``poses`` maps a label to ``(H36M17 joints (views, frames, 17, 3), colour)``."""
+    column per frame. ``poses`` maps a label to ``(STRUCTRI17 joints (views, frames, 17, 3), colour)``."""
     frames = np.asarray(frames)
     figure = Figure(figsize=(2.6 * len(frames), 3.2 * len(views)))
     axes = figure.subplots(len(views), len(frames), squeeze=False)
@@ -236,7 +236,7 @@ def plot_camera_poses(poses: dict[str, tuple[ArrayLike, str]], views: tuple[int,
             ax = axes[row, column]
             for label, (joints, colour) in poses.items():
                 pose = np.asarray(joints)[view, frame]
-                for joint, parent in enumerate(H36M17.parents):
+                for joint, parent in enumerate(STRUCTRI17.parents):
                     if parent >= 0:
                         ax.plot(pose[[joint, parent], 0], -pose[[joint, parent], 1], color=colour, lw=1.5,
                                 label=label if joint == 1 else None)
@@ -255,7 +255,7 @@ def _plot_skeletons(config: ExperimentConfig, batch: Batch, predictions: dict, p
     """Ground truth, FLEX and Structural Triangulation with the stale calibration, first dynamic sample."""
 
     poses = {"ground truth": (batch.joints[0], "black"),
-             "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, H36M17), "tab:red"),
+             "FLEX": (remap_joints(predictions["dynamic", "detected", "FLEX"][0], FLEX20, STRUCTRI17), "tab:red"),
              "ST, stale calibration": (
                  predictions["dynamic", "detected", "Structural Triangulation, stale (first frame)"][0], "tab:blue")}
     frames = np.linspace(0, config.frames - 1, config.plot_frames).round().astype(int)

@@ -4,7 +4,7 @@ Protocol (``/work/shared/specs/structri_reference.md`` section 5): the official 
 (:func:`geometry.structri_virtual_rig`, round and half rings, 2 m from the origin, f = 900 px,
 skew 0.5), exact projections plus ``sigma * N(0, 1)`` pixel noise, uniform weights ``1/C``, N = 3 SCA
 steps (the solver drops to one step on the degenerate two-camera round ring by itself). Poses are
-real CMU motion from the shipped clips (:func:`mocap.load_clip`, H36M17 joints), subsampled.
+real CMU motion from the shipped clips (:func:`mocap.load_clip`, STRUCTRI17 joints), subsampled.
 
 Units: computed in METRES (project convention), reported in MILLIMETRES (``*_mm`` keys), like the
 paper. LEM runs the official DLT in millimetres (it is not unit-invariant; ``DLT_m`` is the same DLT
@@ -37,7 +37,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from tqdm import tqdm
 
-from geometry import H36M17, bone_lengths, mbls, mpble, mpjpe, pib, structri_virtual_rig
+from geometry import STRUCTRI17, bone_lengths, mbls, mpble, mpjpe, pib, structri_virtual_rig
 from mocap import list_clips, load_clip
 from structri import (constrained_reference, estimate_bone_lengths, lagrangian_triangulation, lem_triangulation,
                       ls_triangulation, projection_matrices, reduced_objective, reduced_problem,
@@ -103,8 +103,8 @@ def load_poses(cfg: VirtualConfig, assets: str | Path | None = None) -> tuple[np
     poses, lengths, person = [], [], []
     for name in names:
         clip = load_clip(name, **kwargs)
-        for sequence in clip.joints(H36M17):
-            mean_lengths = np.asarray(bone_lengths(sequence, H36M17)).mean(axis=0)
+        for sequence in clip.joints(STRUCTRI17):
+            mean_lengths = np.asarray(bone_lengths(sequence, STRUCTRI17)).mean(axis=0)
             kept = sequence[:: cfg.frame_stride]
             poses.append(kept)
             lengths.append(np.broadcast_to(mean_lengths, (len(kept), mean_lengths.size)))
@@ -137,10 +137,10 @@ def _pad_views(P: np.ndarray, points: np.ndarray, max_views: int) -> tuple[np.nd
 
 
 def _estimated_lengths(points, P, confidences, person, cfg) -> np.ndarray:
-    out = np.empty((len(person), H36M17.num_joints - 1))
+    out = np.empty((len(person), STRUCTRI17.num_joints - 1))
     for p in np.unique(person):
         rows = np.flatnonzero(person == p)
-        out[rows] = np.asarray(estimate_bone_lengths(points[rows], P, H36M17, confidences[rows],
+        out[rows] = np.asarray(estimate_bone_lengths(points[rows], P, STRUCTRI17, confidences[rows],
                                                      frames=np.arange(min(cfg.estimate_frames, rows.size))))
     return out
 
@@ -173,10 +173,10 @@ def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, len
         "mpjpe_mm": {k: float(np.nanmean(v)) for k, v in per_frame.items()},
         "st_le_lem_fraction": float(np.mean(per_frame["ST"] <= per_frame["LEM"])),
         "st_le_dlt_m_fraction": float(np.mean(per_frame["ST"] <= per_frame["DLT_m"])),
-        "mpble_mm": {k: 1000.0 * float(np.mean(mpble(r.pose, H36M17, lengths))) for k, r in results.items()},
-        "mbls_mm": {k: 1000.0 * float(np.mean([mbls(np.asarray(r.pose)[g], H36M17) for g in groups]))
+        "mpble_mm": {k: 1000.0 * float(np.mean(mpble(r.pose, STRUCTRI17, lengths))) for k, r in results.items()},
+        "mbls_mm": {k: 1000.0 * float(np.mean([mbls(np.asarray(r.pose)[g], STRUCTRI17) for g in groups]))
                     for k, r in results.items()},
-        "pib_percent": {k: 100.0 * float(np.mean(pib(r.pose, H36M17, lengths))) for k, r in results.items()},
+        "pib_percent": {k: 100.0 * float(np.mean(pib(r.pose, STRUCTRI17, lengths))) for k, r in results.items()},
         "status_counts_ST": {int(s): int(c) for s, c in zip(*np.unique(np.asarray(results["ST"].status), return_counts=True))},
     }
     k = min(cfg.reference_frames, len(poses))
