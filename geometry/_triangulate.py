@@ -65,9 +65,11 @@ class Triangulation(NamedTuple):
     point: Float[Array, "*batch 3"]
     """Triangulated point in world units (metres); zeros where ``valid`` is False."""
     valid: Bool[Array, "*batch"]
-    """At least two views with positive weight, the point is well determined (not a near-double
-    null space, e.g. coincident camera centres) and finite (``|point| <= max_distance``; a point at
-    infinity from parallel rays fails this)."""
+    """At least two views with positive weight whose camera centres differ (a zero baseline determines
+    no depth), the point is well determined (not a near-double null space, e.g. consistent rays from
+    one centre), finite (``|point| <= max_distance``; a point at infinity from parallel rays fails
+    this) and in front of every camera with positive weight (positive depth: a camera cannot have
+    seen a point behind it)."""
     reprojection_error: Float[Array, "*batch views"]
     """Distance in pixels between each view's input point and the reprojected point; 0 for views with
     weight 0 and for invalid points."""
@@ -305,6 +307,48 @@ def _reprojection(
     return jnp.stack(errors), residual
 
 
+_BASELINE_FLOOR = 1e3
+"""Two camera centres closer than this many machine epsilons of their distances from the world origin
+count as one (rounding in ``-M^-1 p`` leaves a few epsilons between equal centres)."""
+
+
+def _camera_geometry(projections: Float[Array, "views 3 4"]) -> tuple[list[Scalar], list[list[Scalar]]]:
+    """Per view, ``det M`` (``P = [M | p]``; its sign turns ``P[2] . [X; 1]`` into a depth sign) and the
+    camera centre ``-M^-1 p`` by cofactors (element-wise, like the kernels)."""
+    dets, centres = [], []
+    for view in range(projections.shape[0]):
+        m, p = projections[view, :, :3], projections[view, :, 3]
+        cofactor = [[m[(i + 1) % 3, (j + 1) % 3] * m[(i + 2) % 3, (j + 2) % 3]
+                     - m[(i + 1) % 3, (j + 2) % 3] * m[(i + 2) % 3, (j + 1) % 3] for j in range(3)] for i in range(3)]
+        det = m[0, 0] * cofactor[0][0] + m[0, 1] * cofactor[0][1] + m[0, 2] * cofactor[0][2]
+        safe = jnp.where(det != 0, det, 1)
+        dets.append(det)
+        centres.append([-(cofactor[0][j] * p[0] + cofactor[1][j] * p[1] + cofactor[2][j] * p[2]) / safe
+                        for j in range(3)])
+    return dets, centres
+
+
+def _geometry_checks(
+    projections: Float[Array, "views 3 4"], used: Bool[Array, "views"], v: Vector4
+) -> tuple[Bool[Array, ""], Bool[Array, ""]]:
+    """``(in_front, baseline)``: positive depth in every used camera (cheirality), and some two used
+    cameras with distinct centres. Flags only: the point itself is left as the kernels found it."""
+    dets, centres = _camera_geometry(projections)
+    views = projections.shape[0]
+    in_front = jnp.array(True)
+    for view in range(views):
+        w = _dot([projections[view, 2, j] for j in range(4)], v)
+        in_front = in_front & (~used[view] | (w * v[3] * dets[view] > 0))
+    floor = _BASELINE_FLOOR * jnp.finfo(projections.dtype).eps
+    baseline = jnp.array(False)
+    for a in range(views):
+        for b in range(a + 1, views):
+            gap = sum((centres[a][i] - centres[b][i]) ** 2 for i in range(3))
+            size = sum(centres[a][i] ** 2 + centres[b][i] ** 2 for i in range(3))
+            baseline = baseline | (used[a] & used[b] & (gap > floor * floor * size))
+    return in_front, baseline
+
+
 def triangulate_point(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "views 2"],
@@ -333,7 +377,8 @@ def triangulate_point(
     conditioning = _conditioning(problem)
     finite = jnp.abs(v[3]) * max_distance > jnp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     well_posed = conditioning > _CONDITIONING_FLOOR * jnp.finfo(conditioning.dtype).eps
-    valid = (problem.num_views >= 2) & finite & well_posed
+    in_front, baseline = _geometry_checks(projections, weights > 0, v)
+    valid = (problem.num_views >= 2) & finite & well_posed & in_front & baseline
     w = jnp.where(valid, v[3], 1)
     point = [jnp.where(valid, v[i] / w, 0) for i in range(3)]
     reprojection_error, residual = _reprojection(projections, points, problem, valid & (weights > 0), v, point)
@@ -378,6 +423,8 @@ def _check_inputs(projections: Array, points: Array, weights: ArrayLike | None, 
     if projections.ndim != 3 or projections.shape[1:] != (3, 4):
         raise ValueError(f"projections must have shape (views, 3, 4), got {projections.shape}")
     views = projections.shape[0]
+    if views == 0:
+        raise ValueError("projections has no cameras (shape (0, 3, 4)): triangulation needs at least two views")
     if points.ndim < 2 or points.shape[-2:] != (views, 2):
         raise ValueError(f"points must have shape (*batch, {views}, 2) for {views} views, got {points.shape}")
     if weights is not None:

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import os
 import typing
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal, NamedTuple
@@ -68,6 +69,7 @@ __all__ = [
     "ActorScore",
     "ShelfScore",
     "evaluate_shelf",
+    "prediction_problems",
     "format_shelf_scores",
 ]
 
@@ -233,6 +235,8 @@ class ShelfScore(NamedTuple):
     averaged_actors: tuple[int, ...]
     average: dict[str, float]
     """Mean over ``averaged_actors`` of pcp, precision, recall, mpjpe_mm, mpjpe_jcsat_mm, recall_500mm."""
+    problems: tuple[str, ...] = ()
+    """What :func:`prediction_problems` found wrong with the predictions (each also warned about)."""
 
     def to_dict(self) -> dict:
         """JSON-ready nested dict; an undefined value (NaN) becomes None (JSON null)."""
@@ -242,7 +246,8 @@ class ShelfScore(NamedTuple):
             return None if isinstance(value, float) and not np.isfinite(value) else value
 
         return {"protocol": self.protocol, "actors": [clean(a._asdict()) for a in self.actors],
-                "averaged_actors": list(self.averaged_actors), "average": clean(self.average)}
+                "averaged_actors": list(self.averaged_actors), "average": clean(self.average),
+                "problems": list(self.problems)}
 
 
 _AVERAGED_FIELDS = ("pcp", "precision", "recall", "mpjpe_mm", "mpjpe_jcsat_mm", "recall_500mm")
@@ -250,6 +255,47 @@ _AVERAGED_FIELDS = ("pcp", "precision", "recall", "mpjpe_mm", "mpjpe_jcsat_mm", 
 
 def _percent(numerator, denominator) -> float:
     return float(100.0 * numerator / denominator) if denominator else float("nan")
+
+
+_UNIT_RATIO_LIMIT = 10.0
+"""Predicted bones more than this many times longer (or shorter) than the ground truth's are a unit mistake."""
+_MIN_COVERAGE = 0.9
+"""Below this fraction of the evaluated frames with a prediction, the file is reported as incomplete."""
+
+_UNIT_NAMES = ((300.0, 3000.0, "millimetres"), (30.0, 300.0, "centimetres"))
+
+
+def _median_bone_length(joints: Float[np.ndarray, "n 15 3"]) -> float:
+    """Median SHELF15 bone length over the bones whose two joints are reconstructed (not (0, 0, 0)); NaN if none."""
+    parent, child = (np.array(ends) for ends in zip(*_SHELF15.bones))
+    lengths = np.linalg.norm(joints[:, child] - joints[:, parent], axis=-1)
+    present = np.any(joints != 0, axis=-1)
+    known = lengths[present[:, parent] & present[:, child]]
+    return float(np.median(known)) if known.size else float("nan")
+
+
+def prediction_problems(predictions: PosePredictions, ground_truth: EvaluationGroundTruth) -> tuple[str, ...]:
+    """What makes a score of ``predictions`` against ``ground_truth`` misleading, one line each (none: ``()``).
+
+    - unit: the median predicted bone is more than 10 times as long (or short) as the
+      ground truth's median bone (predictions in millimetres are 1000x and score PCP 0);
+    - coverage: fewer than 90% of the evaluated frames (those with an annotated person) have a
+      prediction (a truncated file, or shifted frame indices; every person there is scored a miss).
+    """
+    problems = []
+    predicted, annotated = _median_bone_length(predictions.joints), _median_bone_length(
+        ground_truth.joints[ground_truth.annotated])
+    ratio = predicted / annotated if annotated > 0 else float("nan")
+    if np.isfinite(ratio) and not 1 / _UNIT_RATIO_LIMIT <= ratio <= _UNIT_RATIO_LIMIT:
+        unit = next((name for low, high, name in _UNIT_NAMES if low <= ratio < high), "a unit other than metres")
+        problems.append(f"predicted bones are {ratio:.4g}x the ground truth's (median {predicted:.4g} vs "
+                        f"{annotated:.3g} m): the joints look like {unit}; predictions must be in metres")
+    evaluated = ground_truth.frames[ground_truth.annotated.any(axis=0)]
+    covered = int(np.isin(evaluated, predictions.frame).sum())
+    if evaluated.size and covered < _MIN_COVERAGE * evaluated.size:
+        problems.append(f"predictions cover {covered} of the {evaluated.size} evaluated frames "
+                        f"({100 * covered / evaluated.size:.1f}%): every person in the other frames is scored a miss")
+    return tuple(problems)
 
 
 def evaluate_shelf(
@@ -262,7 +308,9 @@ def evaluate_shelf(
 
     Every prediction must lie in a frame of ``ground_truth.frames`` (a prediction elsewhere is most
     likely an off-by-300 detection index and raises ``ValueError``). ``averaged_actors`` are the
-    0-based actors of the reported average: actors 1-3 for Shelf and Campus.
+    0-based actors of the reported average: actors 1-3 for Shelf and Campus. The
+    :func:`prediction_problems` of the predictions (a unit mistake, low coverage) are warned about
+    (``UserWarning``) and returned in ``problems``.
     """
     if protocol not in EVALUATION_PROTOCOLS:
         raise ValueError(f"unknown protocol {protocol!r}; choose from {EVALUATION_PROTOCOLS}")
@@ -270,6 +318,9 @@ def evaluate_shelf(
     if outside.size:
         raise ValueError(f"predictions in frames {outside[:5].tolist()} outside the evaluated frames "
                          f"{ground_truth.frames.min()}..{ground_truth.frames.max()} (actorsGT indices)")
+    problems = prediction_problems(predictions, ground_truth)
+    for problem in problems:
+        warnings.warn(problem, stacklevel=2)
     num_actors = ground_truth.annotated.shape[0]
     pred_joints, gt_joints, actors = [], [], []
     near_500mm = np.zeros(num_actors, np.int64)
@@ -335,7 +386,7 @@ def evaluate_shelf(
     if missing:
         raise ValueError(f"averaged actors {missing} are never annotated in the evaluated frames")
     average = {f: float(np.mean([getattr(by_actor[a], f) for a in averaged_actors])) for f in _AVERAGED_FIELDS}
-    return ShelfScore(protocol, tuple(scores), tuple(averaged_actors), average)
+    return ShelfScore(protocol, tuple(scores), tuple(averaged_actors), average, problems)
 
 
 def _cell(value: float, digits: int = 1) -> str:

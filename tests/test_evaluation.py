@@ -2,6 +2,7 @@
 hand-computed cases where the three matching conventions differ, the JSON-lines format, and the CLI."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -10,8 +11,8 @@ from numpy.testing import assert_allclose
 import geometry
 from experiments import shelf_eval
 from mocap import (EVALUATION_PROTOCOLS, PREDICTIONS_HEADER, PosePredictions, evaluate_shelf, format_shelf_scores,
-                   ground_truth_from_shelf14, match_predictions, predictions_from_4dassoc, read_predictions,
-                   shelf_evaluation_ground_truth, suppress_duplicates, write_predictions)
+                   ground_truth_from_shelf14, match_predictions, prediction_problems, predictions_from_4dassoc,
+                   read_predictions, shelf_evaluation_ground_truth, suppress_duplicates, write_predictions)
 
 # A standing person (SHELF14, metres). Bones: legs 0.45, lower arms 0.3, upper arms 0.269, head 0.5,
 # torso (mid-hip (0, 0, 0.9) to head bottom) 0.6; the right ankle is 0.1 m from the origin.
@@ -321,8 +322,9 @@ def small_prediction_file(data_root, fourda_predictions, tmp_path_factory):
 
 
 def test_cli_json(data_root, small_prediction_file, capsys):
-    assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root),
-                            "--protocol", "jcsat", "--json"]) == 0
+    with pytest.warns(UserWarning, match="predictions cover 10 of the 279 evaluated frames"):
+        assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root),
+                                "--protocol", "jcsat", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert [s["protocol"] for s in out["scores"]] == ["jcsat"]
     actors = {a["actor"]: a for a in out["scores"][0]["actors"]}
@@ -331,7 +333,8 @@ def test_cli_json(data_root, small_prediction_file, capsys):
 
 
 def test_cli_table_all_protocols(data_root, small_prediction_file, capsys):
-    assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root)]) == 0
+    with pytest.warns(UserWarning, match="predictions cover 10 of the 279 evaluated frames"):
+        assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root)]) == 0
     out = capsys.readouterr().out
     assert all(f"protocol: {p}" in out for p in EVALUATION_PROTOCOLS)
 
@@ -349,3 +352,36 @@ def test_cli_help_names_every_option(capsys):
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert all(option in out for option in ("--pred", "--data-root", "--protocol", "--ground-truth", "--json"))
+
+
+# --- bad input ("Trustworthy runs"): a score that would mislead is warned about ----------------------
+
+
+def test_predictions_in_millimetres_are_reported():
+    gt = ground_truth(*({0: 0.0, 1: 2.0} for _ in range(10)))
+    metres = predictions(*((f, at(x)) for f in range(10) for x in (0.0, 2.0)))
+    assert prediction_problems(metres, gt) == ()
+    millimetres = metres._replace(joints=1000.0 * metres.joints)
+    message = r"predicted bones are 1000x the ground truth's .* the joints look like millimetres"
+    assert len(prediction_problems(millimetres, gt)) == 1
+    assert re.search(message, prediction_problems(millimetres, gt)[0])
+    with pytest.warns(UserWarning, match=message):
+        result = evaluate_shelf(millimetres, gt, "voxelpose", averaged_actors=(0, 1))
+    assert result.average["pcp"] == 0.0 and re.search(message, result.problems[0])
+    assert result.to_dict()["problems"] == list(result.problems)
+    # Unreconstructed (0, 0, 0) joints do not enter the bone lengths.
+    partly = metres.joints.copy()
+    partly[:, :6] = 0.0
+    assert prediction_problems(metres._replace(joints=partly), gt) == ()
+
+
+def test_predictions_covering_few_frames_are_reported():
+    gt = ground_truth(*({0: 0.0} for _ in range(20)), {})  # the last frame has no annotated person
+    full = predictions(*((f, at(0.0)) for f in range(20)))
+    assert prediction_problems(full, gt) == ()
+    assert prediction_problems(predictions(*((f, at(0.0)) for f in range(18))), gt) == ()  # 90% is enough
+    short = predictions(*((f, at(0.0)) for f in range(4)))
+    message = r"predictions cover 4 of the 20 evaluated frames \(20.0%\)"
+    with pytest.warns(UserWarning, match=message):
+        result = evaluate_shelf(short, gt, "jcsat", averaged_actors=(0,))
+    assert result.average["pcp"] == 20.0 and len(result.problems) == 1

@@ -3,6 +3,7 @@ tested with their models: tests/test_jcsat_train.py, tests/test_flex_train.py)."
 
 import dataclasses
 import json
+import re
 from typing import NamedTuple
 
 import jax
@@ -82,3 +83,97 @@ def test_dropout():
     dropped = np.asarray(training.dropout(x, 0.25, jax.random.key(0)))
     assert np.allclose(np.unique(dropped), [0.0, 1 / 0.75])
     assert abs(np.mean(dropped == 0.0) - 0.25) < 0.02 and abs(dropped.mean() - 1.0) < 0.03
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad input ("Trustworthy runs"): damaged run folders and model files.
+
+
+def _records(workdir):
+    return [{k: v for k, v in json.loads(line).items() if k != "seconds_per_step"}
+            for line in (workdir / "log.jsonl").read_text().splitlines()]
+
+
+def test_resume_drops_a_torn_last_log_line(tmp_path):
+    full = _run(tmp_path / "full")
+    with pytest.raises(Killed):
+        _run(tmp_path / "run", log=kill_at(3))  # checkpoint at 2
+    with (tmp_path / "run" / "log.jsonl").open("a") as log:
+        log.write('{"step": 4, "loss": 0.12')  # killed mid-write
+    with pytest.warns(UserWarning, match=r"log.jsonl:4: dropped a torn last line"):
+        resumed = _run(tmp_path / "run", resume=True)
+    assert_array_equal(np.asarray(resumed.value), np.asarray(full.value))
+    assert _records(tmp_path / "run") == _records(tmp_path / "full")
+    (tmp_path / "run" / "log.jsonl").write_text('{"step": 1}\n{"step": 2\n{"step": 3}\n')
+    with pytest.raises(ValueError, match=r"log.jsonl:2 is not a JSON record"):
+        _run(tmp_path / "run", resume=True)
+
+
+def test_resume_skips_a_corrupt_latest_checkpoint(tmp_path):
+    full = _run(tmp_path / "full")
+    with pytest.raises(Killed):
+        _run(tmp_path / "run", log=kill_at(4))  # checkpoints at 2 and 4
+    checkpoints = tmp_path / "run" / "checkpoints"
+    assert sorted(p.name for p in checkpoints.iterdir()) == ["2", "4"]
+    for file in (checkpoints / "4" / "default").rglob("*"):
+        if file.is_file():
+            file.write_bytes(file.read_bytes()[: file.stat().st_size // 2])
+    with pytest.warns(UserWarning, match=r"resuming from checkpoint step 2: skipped step 4 .* does not restore"):
+        resumed = _run(tmp_path / "run", resume=True)
+    assert_array_equal(np.asarray(resumed.value), np.asarray(full.value))
+    assert int(resumed.step) == 5
+    assert _records(tmp_path / "run") == _records(tmp_path / "full")
+    # With no checkpoint that restores, resuming is refused (and nothing is deleted).
+    for file in checkpoints.rglob("*"):
+        if file.is_file() and "default" in file.parts:
+            file.write_bytes(b"")
+    with pytest.raises(ValueError, match=r"no checkpoint in .* restores; the latest \(step 5\)"):
+        _run(tmp_path / "run", resume=True)
+    assert sorted(p.name for p in checkpoints.iterdir()) == ["4", "5"]
+
+
+def _linear(fields):
+    return nnx.Linear(fields["in_features"], fields["out_features"], rngs=nnx.Rngs(7))
+
+
+def test_model_files_are_written_atomically(tmp_path, monkeypatch):
+    model = nnx.Linear(3, 2, rngs=nnx.Rngs(1))
+    training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2}, nnx.state(model))
+    before = {name: (tmp_path / "m" / name).read_bytes() for name in ("config.json", "state.npz")}
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt  # a run killed while writing the arrays
+
+    monkeypatch.setattr(np, "savez", killed)
+    with pytest.raises(KeyboardInterrupt):
+        training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2}, nnx.state(nnx.Linear(3, 2, rngs=nnx.Rngs(2))))
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["config.json", "state.npz"]  # no leftovers
+    assert {name: (tmp_path / "m" / name).read_bytes() for name in before} == before
+
+
+def test_damaged_model_files_name_the_file_and_array(tmp_path):
+    model = nnx.Linear(3, 2, rngs=nnx.Rngs(1))
+    folder = tmp_path / "m"
+    training.save_model(folder, {"in_features": 3, "out_features": 2}, nnx.state(model))
+    state, config = (folder / "state.npz").read_bytes(), (folder / "config.json").read_text()
+    with np.load(folder / "state.npz") as stored:
+        arrays = dict(stored)
+    kernel = next(name for name in arrays if "kernel" in name)
+
+    np.savez(folder / "state.npz", **arrays | {kernel: arrays[kernel][:, :1]})  # wrong shape
+    with pytest.raises(ValueError, match=rf"state.npz does not match .* array {re.escape(kernel)} is float32\[3, 1\], "
+                                         r"the model expects float32\[3, 2\]"):
+        training.load_model_state(folder, _linear)
+    np.savez(folder / "state.npz", **arrays | {kernel: arrays[kernel].astype(np.float16)})  # wrong dtype
+    with pytest.raises(ValueError, match=rf"array {re.escape(kernel)} is float16\[3, 2\]"):
+        training.load_model_state(folder, _linear)
+    (folder / "state.npz").write_bytes(state[: len(state) // 2])
+    with pytest.raises(ValueError, match=rf"{re.escape(str(folder / 'state.npz'))} cannot be read \(truncated"):
+        training.load_model_state(folder, _linear)
+    (folder / "state.npz").write_bytes(state)
+    (folder / "config.json").write_text(config[: len(config) // 2])
+    with pytest.raises(ValueError, match=rf"{re.escape(str(folder / 'config.json'))} is not valid JSON \(truncated"):
+        training.load_model_state(folder, _linear)
+    (folder / "config.json").write_text(config)
+    loaded = training.load_model_state(folder, _linear)
+    assert_array_equal(np.asarray(loaded.kernel[...]), np.asarray(model.kernel[...]))

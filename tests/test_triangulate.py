@@ -354,3 +354,54 @@ def test_benchmark_smoke(capsys):
     assert result["2view_closed_form_max_abs_diff_m"] < 1e-9
     assert result["5view_closed_form_max_abs_diff_m"] < 1e-9
     assert result["2view_closed_form_points_per_s"] > 0
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad input ("Trustworthy runs"): geometry that cannot have produced the observations is never `valid`.
+
+
+def _camera(R, center):
+    return K @ np.hstack([R, (-R @ np.asarray(center, float))[:, None]])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_point_behind_the_cameras_is_invalid(method):
+    projections, points, _ = scene(2, noise=0.0, num_points=4)
+    # Points far behind the ring (the cameras look towards +z): the pixels they project to are consistent
+    # (the DLT finds the point exactly) but no camera can have seen it.
+    behind = points * [0.2, 1.0, -1.0] - [0.0, 0.0, 3.0]
+    for depths in np.einsum("vj,nj->nv", projections[:, 2, :3], behind) + projections[:, 2, 3]:
+        assert np.all(depths < 0)
+    result = triangulate(projections, project(projections, behind), method=method)
+    assert not np.asarray(result.valid).any()
+    assert np.all(np.asarray(result.point) == 0)
+    in_front = triangulate(projections, project(projections, points), method=method)
+    assert np.asarray(in_front.valid).all()
+    # Behind one used camera only is refused too; a view with weight 0 does not count.
+    third = np.concatenate([projections, _camera(np.eye(3), points[0] + [0.0, 0.0, 1.0])[None]])
+    pixels = np.concatenate([project(projections, points[:1]), np.zeros((1, 1, 2))], axis=1)
+    assert not bool(triangulate(third, pixels, np.array([[1.0, 1.0, 1.0]]), method=method).valid[0])
+    assert bool(triangulate(third, pixels, np.array([[1.0, 1.0, 0.0]]), method=method).valid[0])
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_zero_baseline_is_invalid(method, dtype):
+    # Two cameras at one centre seeing different pixels: their rays meet only at the centre, which the DLT
+    # returns as a well-posed, finite point (depth 0, rounded either way).
+    target = np.array([0.3, -0.2, 5.0])
+    coincident = np.stack([_camera(np.eye(3), [1.0, 2.0, -1.0]), _camera(rotation([0.0, 0.3, 0.0]), [1.0, 2.0, -1.0])])
+    pixels = project(coincident, target) + np.array([[0.0, 0.0], [25.0, -10.0]])
+    result = triangulate(coincident.astype(dtype), pixels.astype(dtype), method=method)
+    assert not bool(result.valid)
+    # A third camera elsewhere gives a baseline again.
+    rig = np.concatenate([coincident, _camera(np.eye(3), [0.0, 0.0, 0.0])[None]])
+    assert bool(triangulate(rig.astype(dtype), project(rig, target).astype(dtype), method=method).valid)
+
+
+def test_no_cameras_is_a_one_line_error():
+    with pytest.raises(ValueError, match="no cameras"):
+        triangulate(np.zeros((0, 3, 4)), np.zeros((5, 0, 2)))
+    rig = Camera.create(np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="no cameras"):
+        triangulate_pixels(rig, np.zeros((5, 0, 2)))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
@@ -40,10 +41,45 @@ def data_parallel_shardings(batch_size: int) -> tuple[NamedSharding, NamedShardi
 
 def _truncate_log(path: Path, last_step: int) -> None:
     """Drop log lines past the restored step (or all of a run killed before its first checkpoint):
-    the run writes them again, identically."""
-    if path.is_file():
-        lines = [line for line in path.read_text().splitlines() if json.loads(line)["step"] <= last_step]
-        path.write_text("".join(line + "\n" for line in lines))
+    the run writes them again, identically. A run killed while writing a line leaves it torn (the last line,
+    not valid JSON): it is dropped with a warning; a bad line before the last is refused."""
+    if not path.is_file():
+        return
+    lines = path.read_text().splitlines()
+    records = []
+    for number, line in enumerate(lines, 1):
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            if number < len(lines):
+                raise ValueError(f"{path}:{number} is not a JSON record (only a torn last line is dropped)") from None
+            warnings.warn(f"{path}:{number}: dropped a torn last line (a run killed while logging)", stacklevel=3)
+            lines = lines[:-1]
+    kept = [line for line, record in zip(lines, records) if record["step"] <= last_step]
+    path.write_text("".join(line + "\n" for line in kept))
+
+
+def _restore_latest(manager: ocp.CheckpointManager, state: S) -> tuple[S, int]:
+    """The state of the latest checkpoint that restores and its step. A newer one that does not (corrupt,
+    half-deleted) is skipped with a warning naming its step and deleted once an older one restored, so the
+    run saves that step again; when none restores, the latest one's error is raised and nothing deleted."""
+    abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
+    failed: list[tuple[int, Exception]] = []
+    for step in sorted(manager.all_steps(), reverse=True):
+        try:
+            restored = manager.restore(step, args=ocp.args.StandardRestore(abstract._asdict()))
+        except Exception as error:  # orbax and tensorstore raise many types for a damaged checkpoint
+            failed.append((step, error))
+            continue
+        for skipped, error in failed:
+            reason = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+            warnings.warn(f"resuming from checkpoint step {step}: skipped step {skipped} in {manager.directory}, "
+                          f"which does not restore ({reason})", stacklevel=3)
+            manager.delete(skipped)
+        return type(state)(**restored), step
+    step, error = failed[0]
+    raise ValueError(f"no checkpoint in {manager.directory} restores; the latest (step {step}) fails with "
+                     f"{type(error).__name__}") from error
 
 
 def run_training(
@@ -75,7 +111,8 @@ def run_training(
     logged step (``step``, the metrics every ``log_interval`` steps with the ``learning_rate(i)`` as ``lr``
     and ``seconds_per_step``, ``validate(state)`` every ``validation_interval`` steps, both at the last);
     ``checkpoints/<step>/`` (orbax, atomic, the last two kept) every ``checkpoint_interval`` steps and at the
-    end. ``resume=True`` continues from the latest checkpoint (refusing a different config); ``resume=False``
+    end. ``resume=True`` continues from the latest checkpoint that restores (refusing a different config; a corrupt one
+    is skipped with a warning for the one before it, a torn last log line dropped with a warning); ``resume=False``
     refuses a ``workdir`` that already has checkpoints. ``log`` receives every record written; ``progress``
     shows a tqdm bar. The state is kept on ``replicated`` devices.
     """
@@ -96,8 +133,7 @@ def run_training(
         if latest is not None and not resume:
             raise ValueError(f"{workdir} already has checkpoints (step {latest}); pass resume=True or a new workdir")
         if latest is not None:
-            abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, state)
-            state = type(state)(**manager.restore(latest, args=ocp.args.StandardRestore(abstract._asdict())))
+            state, latest = _restore_latest(manager, state)
         _truncate_log(log_path, 0 if latest is None else latest)
         config_path.write_text(config_json)
         state = jax.device_put(state, replicated)

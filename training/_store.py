@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
+import tempfile
+import zipfile
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -24,13 +28,65 @@ def _storable(state: Any) -> Any:
     return nnx.filter_state(state, nnx.Not(nnx.RngState))
 
 
+def _write_atomically(path: Path, write: Callable[[Any], None]) -> Path:
+    """``write(binary file)`` into a hidden temporary file next to ``path``, flushed to disk; returns its path
+    for :func:`os.replace` (removed if ``write`` fails)."""
+    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
+    try:
+        with os.fdopen(descriptor, "wb") as file:
+            write(file)
+            file.flush()
+            os.fsync(file.fileno())
+    except BaseException:
+        os.unlink(temporary)
+        raise
+    return Path(temporary)
+
+
 def save_model(path: str | Path, config: Any, state: Any) -> None:
-    """Write a model's config dataclass and its NNX ``state`` (for example ``nnx.merge_state(params, rest)``)."""
+    """Write a model's config dataclass and its NNX ``state`` (for example ``nnx.merge_state(params, rest)``).
+
+    Both files are written in full to temporary files in the folder and only then renamed into place, so a
+    killed run leaves the previous model (or none), never a truncated file."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    (path / "config.json").write_text(json.dumps(to_jsonable(config), indent=2) + "\n")
+    config_text = (json.dumps(to_jsonable(config), indent=2) + "\n").encode()
     leaves = jax.tree_util.tree_flatten_with_path(_storable(state))[0]
-    np.savez(path / "state.npz", **{jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves})
+    arrays = {jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves}
+    written = {}
+    try:
+        written["config.json"] = _write_atomically(path / "config.json", lambda file: file.write(config_text))
+        written["state.npz"] = _write_atomically(path / "state.npz", lambda file: np.savez(file, **arrays))
+    except BaseException:
+        for temporary in written.values():
+            temporary.unlink()
+        raise
+    for name in ("state.npz", "config.json"):
+        os.replace(written[name], path / name)
+    directory = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(directory)  # the renames themselves reach the disk
+    finally:
+        os.close(directory)
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    try:
+        fields = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not valid JSON (truncated or corrupt: {error})") from None
+    if not isinstance(fields, dict):
+        raise ValueError(f"{path} must hold a JSON object of config fields, got {type(fields).__name__}")
+    return fields
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    try:
+        # Opened here, not by np.load, which leaves its own handle open when the zip directory is unreadable.
+        with path.open("rb") as file, np.load(file, allow_pickle=False) as arrays:
+            return {name: arrays[name] for name in arrays.files}
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as error:
+        raise ValueError(f"{path} cannot be read (truncated or corrupt: {error})") from None
 
 
 def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> M:
@@ -40,17 +96,23 @@ def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> 
     missing = [name for name in ("config.json", "state.npz") if not (path / name).is_file()]
     if missing:
         raise FileNotFoundError(f"{path} is not a saved model folder: no {', '.join(missing)}")
-    fields = json.loads((path / "config.json").read_text())
+    fields = _read_config(path / "config.json")
     fields = {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
     # The structure is traced abstractly: initialising every layer eagerly only to overwrite it cost most of a load.
     model = nnx.eval_shape(lambda: build(fields))
     stored = _storable(nnx.state(model))
     leaves, treedef = jax.tree_util.tree_flatten_with_path(stored)
-    with np.load(path / "state.npz") as arrays:
-        absent = [jax.tree_util.keystr(k) for k, _ in leaves if jax.tree_util.keystr(k) not in arrays]
-        if absent:
-            raise ValueError(f"{path / 'state.npz'} does not match the model of its config.json: no {absent[:3]}")
-        values = [jnp.asarray(arrays[jax.tree_util.keystr(k)], v.dtype) for k, v in leaves]
+    state_path = path / "state.npz"
+    arrays = _read_arrays(state_path)
+    absent = [jax.tree_util.keystr(k) for k, _ in leaves if jax.tree_util.keystr(k) not in arrays]
+    if absent:
+        raise ValueError(f"{state_path} does not match the model of its config.json: no {absent[:3]}")
+    for key, expected in leaves:
+        name, array = jax.tree_util.keystr(key), arrays[jax.tree_util.keystr(key)]
+        if array.shape != expected.shape or array.dtype != expected.dtype:
+            raise ValueError(f"{state_path} does not match the model of its config.json: array {name} is "
+                             f"{array.dtype}{list(array.shape)}, the model expects {expected.dtype}{list(expected.shape)}")
+    values = [jnp.asarray(arrays[jax.tree_util.keystr(k)]) for k, _ in leaves]
     nnx.update(model, jax.tree_util.tree_unflatten(treedef, values))
     if jax.tree.leaves(nnx.state(model, nnx.RngState)):
         # The RNG keys and counters are not stored: the ones a fresh build has (one jitted build, the rest of
