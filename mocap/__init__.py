@@ -46,6 +46,7 @@ from ._evaluation import evaluate_shelf as evaluate_shelf
 from ._evaluation import format_shelf_scores as format_shelf_scores
 from ._evaluation import ground_truth_from_shelf14 as ground_truth_from_shelf14
 from ._evaluation import match_predictions as match_predictions
+from ._evaluation import prediction_problems as prediction_problems
 from ._evaluation import shelf_evaluation_ground_truth as shelf_evaluation_ground_truth
 from ._motion import Motion as Motion
 from ._motion import Y_UP_TO_Z_UP as Y_UP_TO_Z_UP
