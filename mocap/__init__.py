@@ -8,6 +8,7 @@ from ._motion import *  # noqa: F403
 from ._asf_amc import *  # noqa: F403
 from ._bvh import *  # noqa: F403
 from ._clips import *  # noqa: F403
+from ._data_root import find_data_root as find_data_root
 from ._procedural import *  # noqa: F403
 from ._detector import *  # noqa: F403
 from ._scene import *  # noqa: F403
