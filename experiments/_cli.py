@@ -26,7 +26,7 @@ import tyro
 
 from ._run_folder import run_folder as run_folder
 
-__all__ = ["run", "run_folder"]
+__all__ = ["parse", "run", "run_folder"]
 
 C = TypeVar("C")
 
@@ -71,28 +71,21 @@ def _rename_aliases(argv: Sequence[str], aliases: Mapping[str, str]) -> list[str
     return renamed
 
 
-def run(main: Callable[[C], object], config_type: type[C], *, description: str | None = None,
-        float64: bool | Callable[[C], bool] = False, aliases: Mapping[str, str] | None = None,
-        argv: Sequence[str] | None = None) -> NoReturn:
-    """Parse ``argv`` (default ``sys.argv[1:]``) into a ``config_type``, run ``main(config)`` and exit.
+def _prog(main: Callable) -> str:
+    return f"python -m experiments.{Path(sys.modules[main.__module__].__file__).stem}"
 
-    ``float64``: whether the run needs ``jax_enable_x64`` (a function of the config where an option decides);
-    it is set explicitly either way, with XLA's faulty CPU fusion turned off, before ``main`` starts.
-    ``aliases``: old option names still accepted, mapped to their current names. Exit status: 0 on success, 2
-    for a bad option or any error (one line ``prog: error: ...`` on stderr; ``--debug`` adds the traceback),
-    130 when interrupted.
-    """
-    argv = list(sys.argv[1:] if argv is None else argv)
-    debug = "--debug" in argv
-    argv = _rename_aliases([arg for arg in argv if arg != "--debug"], aliases or {})
-    prog = f"python -m experiments.{Path(sys.modules[main.__module__].__file__).stem}"
+
+def parse(config_type: type[C], argv: Sequence[str], *, prog: str, description: str | None = None,
+          aliases: Mapping[str, str] | None = None, debug: bool = False) -> C:
+    """The ``config_type`` that ``argv`` (without ``--debug``) describes; ``--help`` exits 0 and a bad option
+    exits 2 with one line ``prog: error: ...`` on stderr (``debug``: tyro's full message and traceback too).
+    ``aliases``: old option names still accepted, mapped to their current names."""
     description = f"{description or ''}\n\n{DEBUG_HELP}".strip()
-    _disable_faulty_cpu_fusion()
-
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            config = tyro.cli(config_type, args=argv, prog=prog, description=description)
+            config = tyro.cli(config_type, args=_rename_aliases(argv, aliases or {}), prog=prog,
+                              description=description)
     except SystemExit as exit_:
         if exit_.code in (0, None):
             raise
@@ -107,6 +100,26 @@ def run(main: Callable[[C], object], config_type: type[C], *, description: str |
             traceback.print_exc()
         _fail(prog, str(error))
     sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+    return config
+
+
+def run(main: Callable[[C], object], config_type: type[C], *, description: str | None = None,
+        float64: bool | Callable[[C], bool] = False, aliases: Mapping[str, str] | None = None,
+        argv: Sequence[str] | None = None) -> NoReturn:
+    """Parse ``argv`` (default ``sys.argv[1:]``) into a ``config_type`` (:func:`parse`), run ``main(config)``
+    and exit.
+
+    ``float64``: whether the run needs ``jax_enable_x64`` (a function of the config where an option decides);
+    it is set explicitly either way, with XLA's faulty CPU fusion turned off, before ``main`` starts.
+    Exit status: 0 on success, 2 for a bad option or any error (one line ``prog: error: ...`` on stderr;
+    ``--debug``: the traceback instead), 130 when interrupted.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    prog = _prog(main)
+    _disable_faulty_cpu_fusion()
+    config = parse(config_type, [arg for arg in argv if arg != "--debug"], prog=prog, description=description,
+                   aliases=aliases, debug=debug)
 
     import jax
 

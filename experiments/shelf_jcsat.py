@@ -88,12 +88,17 @@ def _train(config: Config) -> Path:
     return workdir / "model"
 
 
-def main(config: Config) -> None:
-    model = _train(config) if config.train else config.model
+def experiment_config(config: Config, model: Path | str | None) -> jcsat.ShelfExperimentConfig:
+    """The experiment's part of ``config``, with the data folder found (:func:`mocap.find_data_root`) and
+    ``model`` (None: the shipped one)."""
     data_root = mocap.find_data_root(config.data_root, "shelf")
-    experiment = jcsat.ShelfExperimentConfig(**{
+    return jcsat.ShelfExperimentConfig(**{
         **{field.name: getattr(config, field.name) for field in dataclasses.fields(jcsat.ShelfExperimentConfig)},
         "model": None if model is None else str(model), "data_root": None if data_root is None else str(data_root)})
+
+
+def main(config: Config) -> None:
+    experiment = experiment_config(config, _train(config) if config.train else config.model)
     with _cli.run_folder(config.out, keep=("train",)) as out:
         log_path = out / "log.jsonl"
         stages = [s for s in _STAGES if (s != "plot" or experiment.plot)
