@@ -30,14 +30,13 @@ def run_folder(out: str | os.PathLike, keep: Sequence[str] = ()) -> Iterator[Pat
     """
     out = Path(out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
-    started = _now()
+    record = {**training.provenance(), "started": _now()}  # what starts the run, not what is there at its end
     staging = Path(f"{out.parent / ('.' + out.name)}.staging-{os.getpid()}")
     shutil.rmtree(staging, ignore_errors=True)  # a leftover of a killed run with the same process id
     staging.mkdir()
     try:
         yield staging
-        record = {**training.provenance(), "started": started, "finished": _now()}
-        (staging / "run.json").write_text(json.dumps(record, indent=2) + "\n")
+        (staging / "run.json").write_text(json.dumps({**record, "finished": _now()}, indent=2) + "\n")
         for name in keep:
             if (out / name).exists():
                 (out / name).replace(staging / name)
