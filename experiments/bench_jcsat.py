@@ -2,8 +2,7 @@
 
 Runs the test-time pipeline (Joint Cloud, K-Means persons, tracks: :func:`jcsat.run_geometric_baseline`)
 on ``--frames`` Shelf frames (the real OpenPose detections with a data folder, ``--data-root`` or
-``$MVMOCAP_DATA_ROOT``, else a
-synthetic 4-person Shelf-rig scene), then times the model on every (track, frame) window the main job
+``$MVMOCAP_DATA_ROOT``, else a synthetic 4-person Shelf-rig scene), then times the model on every (track, frame) window the main job
 predicts, with :func:`jcsat.predict_shelf15`, after one compiling call,
 best of ``--repeats``. Reports windows/s and frames/s (windows per frame = tracks output per frame)
 for the shipped model with the main job's aggregate and window stride (``shipped``; ``"mean"`` runs the

@@ -1,8 +1,8 @@
 """Joint Cloud construction speed: the jitted, vmapped kernel against a plain NumPy/OpenCV loop.
 
 Builds the Joint Cloud of ``--frames`` Shelf frames (five views, all 10 view pairs, 25 BODY25 joint
-types; the real OpenPose detections with a data folder, ``--data-root`` or ``$MVMOCAP_DATA_ROOT``, else a synthetic 4-person Shelf-rig
-scene) in one jitted call and reports the amortised time per frame (best of ``--repeats``, after the
+types; the real OpenPose detections with a data folder, ``--data-root`` or ``$MVMOCAP_DATA_ROOT``, else a
+synthetic 4-person Shelf-rig scene) in one jitted call and reports the amortised time per frame (best of ``--repeats``, after the
 compiling call; ``compile_s`` is that call's time minus the best call's), next to :func:`jcsat.numpy_joint_cloud_frame`
 (a loop over pairs, joints and candidates with ``cv2.triangulatePoints``) timed on a few frames.
 """

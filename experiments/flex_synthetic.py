@@ -17,7 +17,7 @@ from typing import Annotated
 import tyro
 
 from experiments import _cli
-from flex._experiment import MODELS, SHIPPED_MODELS, ExperimentConfig, load_models, run_experiment, train_models
+from flex._experiment import SHIPPED_MODELS, ExperimentConfig, load_models, run_experiment, train_models
 
 QUICK = dict(sequences=4)
 """What --quick changes (where the option is not given another value)."""
