@@ -66,16 +66,20 @@ class ClusterConfig:
     of the number of MidHip candidates scoring above ``count_min_score`` (the paper uses "min";
     see :func:`people_count`)."""
     count_min_score: float = 0.2
+    """Detector score a MidHip candidate must exceed to be counted by ``people_rule``."""
     max_people: int = 6
     """Centre slots per frame (static shape); k is clipped to it."""
     kmeans_restarts: int = 8
+    """K-Means runs from different seeds per frame; the one of least cost is kept."""
     kmeans_iterations: int = 20
+    """Lloyd iterations of each K-Means run."""
     trimmed_kmeans: bool = True
     """Trim K-Means at the MidHip radius (see :func:`kmeans`): MidHip candidates that no person
     would accept (farther than that radius from every centre) do not pull the centres. Spurious
     cross-person candidates otherwise drag centres by tens of centimetres on Shelf. False: the
     paper's plain K-Means."""
     joint_radius: tuple[float, ...] = BODY25_JOINT_RADIUS
+    """Metres, per BODY25 joint type: a candidate joins a person only within this distance of its centre."""
     track_gate: float = 0.5
     """Metres: a centre continues a track only if it moved less than this since the track was last seen."""
     candidates_per_pair: int = 4

@@ -16,7 +16,7 @@ rounds after the compiling call), ``speedup_vs_naive`` and the largest differenc
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -29,31 +29,44 @@ from flax import nnx
 
 import geometry
 from dynamics import JAT, SHIPPED_TRANSFORMERS, JATConfig, load_transformers
+from experiments import _cli
 from experiments.bench_geometry import interleaved_times
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--observed", type=int, default=25, help="observed frames (default 25)")
-    parser.add_argument("--horizon", type=int, default=30, help="predicted frames (default 30)")
-    parser.add_argument("--people", type=int, default=2, help="people in the scene (default 2)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed rounds (default 5)")
-    parser.add_argument("--untrained", action="store_true", help="a freshly initialised MPJAT, not the shipped one")
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of lines")
-    args = parser.parse_args(argv)
+@dataclasses.dataclass(frozen=True)
+class Config:
+    observed: int = 25
+    """Observed frames."""
+    horizon: int = 30
+    """Predicted frames."""
+    people: int = 2
+    """People in the scene."""
+    repeats: int = 5
+    """Timed rounds; the best is kept."""
+    untrained: bool = False
+    """A freshly initialised MPJAT, not the shipped one."""
+    json: bool = False
+    """Print one JSON object instead of lines."""
 
+    def __post_init__(self) -> None:
+        for name in ("observed", "horizon", "people", "repeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name} must be >= 1, got {getattr(self, name)}")
+
+
+def main(config: Config) -> None:
     body = geometry.stand_in_body_model()
-    model = (JAT(JATConfig(agent_aware=True), rngs=nnx.Rngs(0)) if args.untrained
+    model = (JAT(JATConfig(agent_aware=True), rngs=nnx.Rngs(0)) if config.untrained
              else load_transformers(SHIPPED_TRANSFORMERS)["MPJAT"])
     rng = np.random.default_rng(0)
-    scene = (1, args.people, args.observed)
+    scene = (1, config.people, config.observed)
     features = jnp.asarray(rng.normal(size=scene + (model.config.feature_dim,)), jnp.float32)
     boxes = jnp.asarray(np.array([100.0, 60, 180, 140]) + rng.normal(scale=2.0, size=scene + (4,)), jnp.float32)
     K = jnp.broadcast_to(jnp.asarray([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]], jnp.float32), scene + (3, 3))
     observed = nnx.jit(lambda model: model.observe(body, features, boxes, K))(model)
     graphdef, state = nnx.split(model)
     rollouts = {name: jax.jit(lambda state, observed, cached=cached: nnx.merge(graphdef, state).rollout(
-        body, observed, args.horizon, cached=cached)) for name, cached in (("cached", True), ("naive", False))}
+        body, observed, config.horizon, cached=cached)) for name, cached in (("cached", True), ("naive", False))}
     outputs, compile_seconds = {}, {}
     for name, fn in rollouts.items():
         start = time.perf_counter()
@@ -62,11 +75,11 @@ def main(argv=None) -> None:
     difference = max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(jax.tree.leaves(outputs["cached"]),
                                                                     jax.tree.leaves(outputs["naive"])))
     best, _ = interleaved_times({name: (lambda fn=fn: fn(state, observed)) for name, fn in rollouts.items()},
-                                    args.repeats)
-    frames = args.horizon * args.people
+                                    config.repeats)
+    frames = config.horizon * config.people
     result = {
-        "people": args.people, "observed": args.observed, "horizon": args.horizon,
-        "model": "untrained" if args.untrained else "shipped MPJAT",
+        "people": config.people, "observed": config.observed, "horizon": config.horizon,
+        "model": "untrained" if config.untrained else "shipped MPJAT",
         "frames_per_second": {name: frames / seconds for name, seconds in best.items()},
         "ms_per_rollout": {name: 1000.0 * seconds for name, seconds in best.items()},
         "compile_seconds": {name: compile_seconds[name] - best[name] for name in best},
@@ -76,7 +89,7 @@ def main(argv=None) -> None:
                     "platform": platform.platform(), "cpus": os.cpu_count(), "jax": jax.__version__,
                     "device": str(jax.devices()[0])},
     }
-    if args.json:
+    if config.json:
         print(json.dumps(result))
     else:
         for key, value in result.items():
@@ -84,4 +97,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _cli.run(main, Config, description=__doc__)

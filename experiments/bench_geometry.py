@@ -12,18 +12,19 @@ px, depth 3-10 m, 0.5 px noise. About 20 s on 2 CPU cores.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
 import time
 from functools import partial
-from typing import Callable
+from typing import Callable, Literal
 
 import cv2
 import jax
 import numpy as np
 
+from experiments import _cli
 from geometry import triangulate
 
 _NUMPY_LOOP_POINTS = 5000
@@ -131,18 +132,27 @@ def run(num_points: int = 100_000, repeats: int = 15, dtype: str = "float64", se
     return result
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    parser.add_argument("--points", type=int, default=100_000, help="points triangulated per call (default 100000)")
-    parser.add_argument("--repeats", type=int, default=15, help="timed calls per method; the best is kept (default 15)")
-    parser.add_argument("--dtype", choices=("float64", "float32"), default="float64", help="dtype of our kernels (OpenCV and NumPy always use float64)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene and noise (default 0)")
-    args = parser.parse_args(argv)
-    if args.dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
-    result = run(args.points, args.repeats, args.dtype, args.seed)
-    if args.json:
+@dataclasses.dataclass(frozen=True)
+class Config:
+    json: bool = False
+    """Print one JSON object instead of a table."""
+    points: int = 100_000
+    """Points triangulated per call."""
+    repeats: int = 15
+    """Timed calls per method; the best is kept."""
+    dtype: Literal["float64", "float32"] = "float64"
+    """Dtype of our kernels (OpenCV and NumPy always use float64)."""
+    seed: int = 0
+    """Seed of the synthetic scene and noise."""
+
+    def __post_init__(self) -> None:
+        if self.points < 1 or self.repeats < 1:
+            raise ValueError(f"--points and --repeats must be >= 1, got {self.points} and {self.repeats}")
+
+
+def main(config: Config) -> None:
+    result = run(config.points, config.repeats, config.dtype, config.seed)
+    if config.json:
         print(json.dumps(result))
     else:
         width = max(map(len, result))
@@ -150,4 +160,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _cli.run(main, Config, description=__doc__, float64=lambda config: config.dtype == "float64")

@@ -1,87 +1,90 @@
 """Joint Cloud construction speed: the jitted, vmapped kernel against a plain NumPy/OpenCV loop.
 
-    .venv/bin/python -m experiments.bench_joint_cloud [--json] [--frames N] [--data-root PATH]
-
 Builds the Joint Cloud of ``--frames`` Shelf frames (five views, all 10 view pairs, 25 BODY25 joint
-types; the real OpenPose detections when the data folder exists, else a synthetic 4-person Shelf-rig
-scene) in one jitted call and reports the amortised time per frame (best of ``--repeats``, after the
-compiling call; ``compile_s`` is that call's time minus the best call's), next to
-:func:`association.numpy_reference.numpy_joint_cloud_frame` (a loop over pairs, joints and candidates with
-``cv2.triangulatePoints``) timed on a few frames.
+types; the real OpenPose detections with a data folder, ``--data-root`` or ``$MVMOCAP_DATA_ROOT``, else a
+synthetic 4-person Shelf-rig scene) in one jitted call and reports the amortised time per frame (best of ``--repeats``, after the
+compiling call; ``compile_s`` is that call's time minus the best call's), next to :func:`association.numpy_reference.numpy_joint_cloud_frame`
+(a loop over pairs, joints and candidates with ``cv2.triangulatePoints``) timed on a few frames.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
+import platform
+import time
+from pathlib import Path
 
-_FLAG = "--xla_cpu_experimental_ynn_fusion_type="
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FLAG}".strip()
+import jax
+import numpy as np
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-
-import association  # noqa: E402
-import mocap  # noqa: E402
-from association.numpy_reference import numpy_joint_cloud_frame  # noqa: E402
-
-_DEFAULT_DATA_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data"
+import association
+import mocap
+from association.numpy_reference import numpy_joint_cloud_frame
+from experiments import _cli
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.bench_joint_cloud", description=__doc__.split("\n")[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a text summary")
-    parser.add_argument("--frames", type=int, default=300, help="frames per jitted call (default: %(default)s)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed calls after compilation; the best counts")
-    parser.add_argument("--numpy-frames", type=int, default=3, help="frames timed for the NumPy loop")
-    parser.add_argument("--float32", action="store_true", help="run the kernel in float32 (default float64)")
-    parser.add_argument("--data-root", type=Path, default=Path(os.environ.get("MVMOCAP_DATA_ROOT", _DEFAULT_DATA_ROOT)),
-                        help="folder with shelf/ (falls back to a synthetic scene without it)")
-    args = parser.parse_args(argv)
-    jax.config.update("jax_enable_x64", not args.float32)
+@dataclasses.dataclass(frozen=True)
+class Config:
+    json: bool = False
+    """Print one JSON object instead of a text summary."""
+    frames: int = 300
+    """Frames per jitted call."""
+    repeats: int = 5
+    """Timed calls after compilation; the best counts."""
+    numpy_frames: int = 3
+    """Frames timed for the NumPy loop."""
+    float32: bool = False
+    """Run the kernel in float32 (default float64)."""
+    data_root: Path | None = None
+    """Folder with shelf/ (default: $MVMOCAP_DATA_ROOT; without either, a synthetic scene)."""
 
-    if (args.data_root / "shelf").is_dir():
-        detections, _ = mocap.load_shelf_detections(args.data_root)
-        rig, source = mocap.shelf_cameras(args.data_root), "real Shelf OpenPose detections"
+    def __post_init__(self) -> None:
+        for name in ("frames", "repeats", "numpy_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        mocap.find_data_root(self.data_root, "shelf")
+
+
+def main(config: Config) -> None:
+    data_root = mocap.find_data_root(config.data_root, "shelf")
+    if data_root is not None:
+        detections, _ = mocap.load_shelf_detections(data_root)
+        rig, source = mocap.shelf_cameras(data_root), "real Shelf OpenPose detections"
     else:
-        scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=args.frames)
+        scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=config.frames)
         detections, rig, source = scene.detections, scene.rig, "synthetic 4-person Shelf-rig scene"
-    detections = (detections * (args.frames // len(detections) + 1))[: args.frames]
+    detections = (detections * (config.frames // len(detections) + 1))[: config.frames]
     padded = mocap.pad_detections(detections)
-    dtype = np.float32 if args.float32 else np.float64
+    dtype = np.float32 if config.float32 else np.float64
     xy, score = padded.xy.astype(dtype), padded.score.astype(dtype)
 
     start = time.perf_counter()
     jax.block_until_ready(association.build_joint_cloud(rig, xy, score, padded.mask))
     compile_s = time.perf_counter() - start
     times = []
-    for _ in range(args.repeats):
+    for _ in range(config.repeats):
         start = time.perf_counter()
         cloud = jax.block_until_ready(association.build_joint_cloud(rig, xy, score, padded.mask))
         times.append(time.perf_counter() - start)
-    jax_ms = 1000 * min(times) / args.frames
+    jax_ms = 1000 * min(times) / config.frames
 
     start = time.perf_counter()
-    for f in range(args.numpy_frames):
+    for f in range(config.numpy_frames):
         numpy_joint_cloud_frame(rig, padded.xy[f], padded.score[f], padded.mask[f])
-    numpy_ms = 1000 * (time.perf_counter() - start) / args.numpy_frames
+    numpy_ms = 1000 * (time.perf_counter() - start) / config.numpy_frames
 
     result = {
         "benchmark": "joint_cloud_construction",
         "source": source,
-        "frames": args.frames,
+        "frames": config.frames,
         "views": int(xy.shape[1]),
         "view_pairs": int(cloud.valid.shape[1]),
         "padded_candidates_per_joint": int(xy.shape[3]),
         "mean_2d_candidates_per_view": float(padded.mask.sum() / (xy.shape[0] * xy.shape[1])),
         "grid_entries_per_frame": int(np.prod(cloud.valid.shape[1:])),
-        "mean_valid_candidates_per_frame": float(np.asarray(cloud.valid).sum() / args.frames),
+        "mean_valid_candidates_per_frame": float(np.asarray(cloud.valid).sum() / config.frames),
         "dtype": np.dtype(dtype).name,
         "compile_plus_first_call_s": round(compile_s, 3),
         "compile_s": round(compile_s - min(times), 3),
@@ -92,13 +95,12 @@ def main(argv: list[str] | None = None) -> int:
         "cpu_count": os.cpu_count(),
         "machine": platform.machine(),
     }
-    if args.json:
+    if config.json:
         print(json.dumps(result, indent=2))
     else:
         for key, value in result.items():
             print(f"{key:>32}: {value}")
-    return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    _cli.run(main, Config, description=__doc__, float64=lambda config: not config.float32)

@@ -25,16 +25,18 @@ About 30 s on 2 CPU cores. ott-jax (a test extra) is imported here only.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import platform
 from functools import partial
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments import _cli
 from experiments.bench_geometry import interleaved_times
 from jcsat import otap, sinkhorn_plan
 
@@ -121,20 +123,32 @@ def run(batch: int = 400, features: int = 128, iterations: int = 100, repeats: i
     return result
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    parser.add_argument("--batch", type=int, default=400, help="sequences per call (default 400)")
-    parser.add_argument("--features", type=int, default=128, help="token dimension d (default 128)")
-    parser.add_argument("--iterations", type=int, default=100, help="fixed Sinkhorn iterations (default 100, as JCSAT)")
-    parser.add_argument("--repeats", type=int, default=10, help="timed rounds; the best is kept (default 10)")
-    parser.add_argument("--dtype", choices=("float32", "float64"), default="float32", help="dtype of every contender (default float32, the model's)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic tokens, masks and reference (default 0)")
-    args = parser.parse_args(argv)
-    if args.dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
-    result = run(args.batch, args.features, args.iterations, args.repeats, args.dtype, args.seed)
-    if args.json:
+@dataclasses.dataclass(frozen=True)
+class Config:
+    json: bool = False
+    """Print one JSON object instead of a table."""
+    batch: int = 400
+    """Sequences per call."""
+    features: int = 128
+    """Token dimension d."""
+    iterations: int = 100
+    """Fixed Sinkhorn iterations (as JCSAT)."""
+    repeats: int = 10
+    """Timed rounds; the best is kept."""
+    dtype: Literal["float32", "float64"] = "float32"
+    """Dtype of every contender (float32 is the model's)."""
+    seed: int = 0
+    """Seed of the synthetic tokens, masks and reference."""
+
+    def __post_init__(self) -> None:
+        for name in ("batch", "features", "iterations", "repeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name} must be >= 1, got {getattr(self, name)}")
+
+
+def main(config: Config) -> None:
+    result = run(config.batch, config.features, config.iterations, config.repeats, config.dtype, config.seed)
+    if config.json:
         print(json.dumps(result))
     else:
         width = max(map(len, result))
@@ -142,4 +156,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    _cli.run(main, Config, description=__doc__, float64=lambda config: config.dtype == "float64")

@@ -1,28 +1,24 @@
 """Speed of the batched, jitted Structural Triangulation against the per-frame NumPy port.
 
-Run: ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= .venv/bin/python -m experiments.bench_structri --json``
-(about 15 s on 2 CPU cores). Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
+About 15 s on 2 CPU cores. Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
 NumPy per frame, float64, STRUCTRI17, virtual round ring), the speed-up, the max relative difference, the
 compile times, and the optimistix reference's time per frame.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
 
 import jax
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import numpy as np  # noqa: E402
-
-from experiments.bench_geometry import interleaved_times  # noqa: E402
-from geometry import STRUCTRI17  # noqa: E402
-from structri import constrained_reference, lem_triangulation, structural_triangulation  # noqa: E402
-from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation  # noqa: E402
+from experiments import _cli
+from experiments.bench_geometry import interleaved_times
+from geometry import STRUCTRI17
+from structri import constrained_reference, lem_triangulation, structural_triangulation
+from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,11 +28,26 @@ class Config:
     numpy_frames: int = 200
     """Frames timed for the per-frame NumPy port (normalised to frames/s)."""
     reference_frames: int = 5
+    """Frames solved by the optimistix reference (after one compiling frame)."""
     views: int = 4
+    """Cameras on the round ring."""
     n_steps: int = 3
+    """SCA steps of Structural Triangulation."""
     sigma: float = 6.0
+    """Pixel noise standard deviation."""
     seed: int = 0
+    """Seed of the poses and the noise."""
     repeats: int = 3
+    """Timed rounds; the best is kept."""
+    json: bool = False
+    """Print one JSON object (otherwise key: value lines)."""
+
+    def __post_init__(self) -> None:
+        for name in ("frames", "numpy_frames", "reference_frames", "views", "repeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.numpy_frames > self.frames or self.reference_frames >= self.frames:
+            raise ValueError("--numpy-frames and --reference-frames must be fewer than --frames")
 
 
 def make_problem(cfg: Config):
@@ -51,8 +62,7 @@ def make_problem(cfg: Config):
     poses[:, 0] = rng.normal(scale=0.05, size=(cfg.frames, 3))
     for j in STRUCTRI17.topological_order[1:]:
         d = rng.normal(size=(cfg.frames, 3))
-        unit = d / np.linalg.norm(d, axis=1, keepdims=True)
-        poses[:, j] = poses[:, STRUCTRI17.parents[j]] + lengths[bone_of[j]] * unit
+        poses[:, j] = poses[:, STRUCTRI17.parents[j]] + lengths[bone_of[j]] * d / np.linalg.norm(d, axis=1, keepdims=True)
     theta = 2 * np.pi * np.arange(cfg.views) / cfg.views
     K = np.array([[900.0, 0.5, 500.0], [0.0, 900.0, 500.0], [0.0, 0.0, 1.0]])
     P = np.stack([K @ np.array([[np.cos(t), 0, np.sin(t), 0], [0, 1, 0, 0], [-np.sin(t), 0, np.cos(t), 2.0]])
@@ -75,7 +85,7 @@ def _compare(name, jax_fn, numpy_fn, points, cfg):
 
 def run(cfg: Config) -> dict:
     points, P, lengths = make_problem(cfg)
-    out = {"config": dataclasses.asdict(cfg), "backend": jax.default_backend(), "dtype": "float64"}
+    out = {"config": {k: v for k, v in dataclasses.asdict(cfg).items() if k != "json"}, "backend": jax.default_backend(), "dtype": "float64"}
     # The NumPy port is the official code, which checks no lengths.
     st = jax.jit(lambda p: structural_triangulation(p, P, lengths, n_steps=cfg.n_steps,
                                                     max_length_error=float("inf")).pose)
@@ -93,17 +103,10 @@ def run(cfg: Config) -> dict:
     return out
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    for field in dataclasses.fields(Config):
-        parser.add_argument(f"--{field.name.replace('_', '-')}", type=type(field.default), default=field.default,
-                            help=f"{field.name} (default {field.default})")
-    parser.add_argument("--json", action="store_true", help="print one JSON object (otherwise key: value lines)")
-    args = vars(parser.parse_args(argv))
-    as_json = args.pop("json")
-    result = run(Config(**args))
-    print(json.dumps(result) if as_json else "\n".join(f"{k}: {v}" for k, v in result.items()))
+def main(config: Config) -> None:
+    result = run(config)
+    print(json.dumps(result) if config.json else "\n".join(f"{k}: {v}" for k, v in result.items()))
 
 
 if __name__ == "__main__":
-    main()
+    _cli.run(main, Config, description=__doc__, float64=True)

@@ -1,63 +1,73 @@
 """FLEX on held-out synthetic CMU clips against camera-dependent triangulation (paper Tables 1, 3 and 5).
 
-Run: ``.venv/bin/python -m experiments.flex_synthetic --out runs/flex_synthetic [--quick] [--train]``.
-Without ``--train`` it evaluates the models shipped in ``flex/assets``; ``--train`` first trains them in
-``DIR/models/<name>`` (resumable: run the same command again after a kill), which is how the shipped ones were
-made. Writes DIR/results.json, DIR/results.md, DIR/skeletons.png, DIR/mpjpe.png and DIR/log.jsonl.
-Logic: :mod:`experiments.flex_study`.
+Without ``--train`` it evaluates the models shipped in ``flex/assets`` (or ``--model-dir``); ``--train`` first
+trains them in ``OUT/models/<name>`` (kept in place, resumable: run the same command again after a kill), which
+is how the shipped ones were made. The motion comes from the clips shipped in mocap/assets (no data folder).
+Writes OUT/results.json, results.md, skeletons.png, mpjpe.png, log.jsonl and run.json, replacing OUT's previous
+outputs as a whole. Logic: :mod:`experiments.flex_study`.
 """
 
-import argparse
+from __future__ import annotations
+
 import dataclasses
 import json
 from pathlib import Path
+from typing import Annotated
 
+import tyro
+
+from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
-from flex import MODELS, SHIPPED_MODELS, load_models
+from flex import SHIPPED_MODELS, load_models
 
 QUICK = dict(sequences=4)
+"""What --quick changes (where the option is not given another value)."""
 TRAIN_STEPS = 1500
 QUICK_TRAIN_STEPS = 100
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", required=True, help="output folder (created)")
-    parser.add_argument("--quick", action="store_true",
-                        help=f"fewer test sequences {QUICK}; with --train, {QUICK_TRAIN_STEPS} training steps per model")
-    parser.add_argument("--train", action="store_true",
-                        help=f"train the models ({', '.join(MODELS)}) into OUT/models instead of using the shipped ones")
-    parser.add_argument("--train-steps", type=int, default=None,
-                        help=f"training steps per model with --train (default {TRAIN_STEPS}, --quick {QUICK_TRAIN_STEPS})")
-    parser.add_argument("--model-dir", default=str(SHIPPED_MODELS),
-                        help="folder with one saved model per name (default: the shipped flex/assets)")
-    parser.add_argument("--data-root", default=None,
-                        help="unused: the motion comes from the clips shipped in mocap/assets (kept for a uniform CLI)")
-    for field in dataclasses.fields(ExperimentConfig):
-        if field.type in ("int", int):
-            parser.add_argument(f"--{field.name.replace('_', '-')}", type=int, default=None,
-                                help=f"{field.name} (default {field.default})")
-    args = parser.parse_args(argv)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(ExperimentConfig)
-                 if getattr(args, f.name, None) is not None}
-    config = dataclasses.replace(ExperimentConfig(), **{**(QUICK if args.quick else {}), **overrides})
+@dataclasses.dataclass(frozen=True)
+class Config:
+    out: Path
+    """Output folder."""
+    quick: bool = False
+    """Fewer test sequences (4); with --train, 100 training steps per model."""
+    train: bool = False
+    """Train the models (flex.MODELS) into OUT/models instead of using the shipped ones."""
+    train_steps: int | None = None
+    """Training steps per model with --train (default 1500, --quick 100)."""
+    model_dir: Path = SHIPPED_MODELS
+    """Folder with one saved model per name (default: the shipped flex/assets)."""
+    experiment: Annotated[ExperimentConfig, tyro.conf.OmitArgPrefixes] = ExperimentConfig()
+    """The experiment."""
 
-    with open(out / "log.jsonl", "a") as log_file:
+    def __post_init__(self) -> None:
+        if not self.train and not self.model_dir.is_dir():
+            raise ValueError(f"--model-dir {self.model_dir} is not a folder")
+        if self.train_steps is not None and self.train_steps < 1:
+            raise ValueError(f"--train-steps must be >= 1, got {self.train_steps}")
+
+
+def main(config: Config) -> None:
+    default = ExperimentConfig()
+    experiment = dataclasses.replace(config.experiment, **{
+        name: value for name, value in (QUICK if config.quick else {}).items()
+        if getattr(config.experiment, name) == getattr(default, name)})
+    with _cli.run_folder(config.out, keep=("models",)) as out, open(out / "log.jsonl", "a") as log_file:
         def log(record: dict) -> None:
             log_file.write(json.dumps(record) + "\n")
             log_file.flush()
 
-        if args.train:
-            steps = args.train_steps or (QUICK_TRAIN_STEPS if args.quick else TRAIN_STEPS)
-            models = train_models(out / "models", steps, seed=config.seed, log=log)
+        if config.train:
+            steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
+            models = train_models(config.out / "models", steps, seed=experiment.seed, log=log)
         else:
-            models = load_models(args.model_dir)
-        results = run_experiment(config, models, out, log=log)
-    print((out / "results.md").read_text())
-    print(f"wrote {out}/results.json, results.md, skeletons.png, mpjpe.png ({results['seconds']} s)")
+            models = load_models(config.model_dir)
+        results = run_experiment(experiment, models, out, log=log)
+        report = (out / "results.md").read_text()
+    print(report)
+    print(f"wrote {config.out}/results.json, results.md, skeletons.png, mpjpe.png ({results['seconds']} s)")
 
 
 if __name__ == "__main__":
-    main()
+    _cli.run(main, Config, description=__doc__)

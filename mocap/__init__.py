@@ -18,6 +18,7 @@ from ._clips import list_clips as list_clips
 from ._clips import load_clip as load_clip
 from ._clips import read_clip_sources as read_clip_sources
 from ._clips import save_clip as save_clip
+from ._data_root import find_data_root as find_data_root
 from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS
 from ._detections import Detections as Detections
 from ._detections import PaddedDetections as PaddedDetections

@@ -69,7 +69,7 @@ import numpy as np
 from jaxtyping import Float
 
 import geometry
-from geometry import SHELF14, STRUCTRI17, Skeleton, to_shelf15
+from geometry import STRUCTRI17, Skeleton, to_shelf15
 
 __all__ = [
     "Y_UP_TO_Z_UP",

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import mocap
-import mocap.convert_cmu
+from experiments import convert_cmu
 from geometry import BODY25, SHELF14, SHELF15, STRUCTRI17
 
 SHIPPED = {"01_01_jumps": 1, "02_01_walk": 1, "02_03_run": 1, "02_04_jump": 1, "02_05_punch": 1,
@@ -53,7 +53,7 @@ def test_unknown_clip():
 def test_reconversion_reproduces_shipped(data_root, tmp_path, name):
     if not (data_root / "cmu_mocap").is_dir():
         pytest.skip("no cmu_mocap data")
-    mocap.convert_cmu.main(["--data-root", str(data_root), "--out", str(tmp_path), "--clips", name])
+    convert_cmu.main(convert_cmu.Config(out=tmp_path, data_root=data_root, clips=(name,)))
     fresh, shipped = mocap.load_clip(name, tmp_path), mocap.load_clip(name)
     np.testing.assert_allclose(fresh.body25, shipped.body25, atol=1e-3 + 1e-9)
     np.testing.assert_allclose(fresh.structri17, shipped.structri17, atol=1e-3 + 1e-9)

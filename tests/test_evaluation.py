@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 import geometry
-from experiments import shelf_eval
+from experiments import _cli, shelf_eval
 from mocap import (EVALUATION_PROTOCOLS, PREDICTIONS_HEADER, PosePredictions, evaluate_shelf, format_shelf_scores,
                    ground_truth_from_shelf14, match_predictions, prediction_problems, predictions_from_4dassoc,
                    read_predictions, shelf_evaluation_ground_truth, suppress_duplicates, write_predictions)
@@ -323,8 +323,7 @@ def small_prediction_file(data_root, fourda_predictions, tmp_path_factory):
 
 def test_cli_json(data_root, small_prediction_file, capsys):
     with pytest.warns(UserWarning, match="predictions cover 10 of the 279 evaluated frames"):
-        assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root),
-                                "--protocol", "jcsat", "--json"]) == 0
+        shelf_eval.main(shelf_eval.Config(pred=small_prediction_file, data_root=data_root, protocol="jcsat", json=True))
     out = json.loads(capsys.readouterr().out)
     assert [s["protocol"] for s in out["scores"]] == ["jcsat"]
     actors = {a["actor"]: a for a in out["scores"][0]["actors"]}
@@ -334,7 +333,7 @@ def test_cli_json(data_root, small_prediction_file, capsys):
 
 def test_cli_table_all_protocols(data_root, small_prediction_file, capsys):
     with pytest.warns(UserWarning, match="predictions cover 10 of the 279 evaluated frames"):
-        assert shelf_eval.main(["--pred", str(small_prediction_file), "--data-root", str(data_root)]) == 0
+        shelf_eval.main(shelf_eval.Config(pred=small_prediction_file, data_root=data_root))
     out = capsys.readouterr().out
     assert all(f"protocol: {p}" in out for p in EVALUATION_PROTOCOLS)
 
@@ -342,13 +341,13 @@ def test_cli_table_all_protocols(data_root, small_prediction_file, capsys):
 def test_cli_reports_a_bad_file(data_root, tmp_path, capsys):
     path = tmp_path / "bad.jsonl"
     path.write_text(json.dumps(PREDICTIONS_HEADER) + "\n{oops\n")
-    assert shelf_eval.main(["--pred", str(path), "--data-root", str(data_root)]) == 2
-    assert "bad.jsonl, line 2" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="bad.jsonl, line 2"):
+        shelf_eval.main(shelf_eval.Config(pred=path, data_root=data_root))
 
 
 def test_cli_help_names_every_option(capsys):
     with pytest.raises(SystemExit) as exit_info:
-        shelf_eval.main(["--help"])
+        _cli.parse(shelf_eval.Config, ["--help"], prog="shelf_eval")
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert all(option in out for option in ("--pred", "--data-root", "--protocol", "--ground-truth", "--json"))

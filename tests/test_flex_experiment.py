@@ -10,7 +10,7 @@ from flax import nnx
 from numpy.testing import assert_allclose
 
 import training
-from experiments import flex_synthetic
+from experiments import _cli, flex_synthetic
 from experiments.flex_study import ExperimentConfig
 from flex import CONFIGS, MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch
 
@@ -56,8 +56,8 @@ def test_the_experiment_writes_every_table_and_plot(tmp_path):
         model = tiny(views, fusion, seed)
         training.save_model(model_dir / name, model.config, nnx.state(model))
     out = tmp_path / "out"
-    flex_synthetic.main(["--out", str(out), "--model-dir", str(model_dir), "--sequences", "2", "--frames",
-                         str(FRAMES)])
+    flex_synthetic.main(flex_synthetic.Config(out=out, model_dir=model_dir,
+                                              experiment=ExperimentConfig(sequences=2, frames=FRAMES)))
     results = json.loads((out / "results.json").read_text())
     assert results["config"]["sequences"] == 2
     main = {(r["camera_motion"], r["input_2d"], r["method"], r["calibration"]) for r in results["main"]}
@@ -83,7 +83,7 @@ def test_the_experiment_writes_every_table_and_plot(tmp_path):
 
 def test_help_explains_every_option(capsys):
     with pytest.raises(SystemExit):
-        flex_synthetic.main(["--help"])
+        _cli.parse(flex_synthetic.Config, ["--help"], prog="flex_synthetic")
     text = capsys.readouterr().out
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames"):
         assert option in text

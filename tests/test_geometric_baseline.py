@@ -11,7 +11,6 @@ import pytest
 
 import association
 import geometry
-import jcsat
 import mocap
 from experiments import jcsat_study
 

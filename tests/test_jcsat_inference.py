@@ -149,17 +149,26 @@ def test_synthetic_validation_scores_baseline_settings_and_the_model_aggregates(
     assert table["default"]["pcp"] > 50.0 > table["jcsat, last"]["pcp"]
 
 
-def test_main_job_options_reach_the_baseline_config():
-    from experiments import shelf_jcsat
+def test_main_job_options_reach_the_baseline_config(capsys, monkeypatch):
+    from experiments import _cli, shelf_jcsat
 
-    defaults = shelf_jcsat.experiment_config(shelf_jcsat.parse_args([]), None)
-    assert defaults == jcsat_study.ShelfExperimentConfig()
-    args = shelf_jcsat.parse_args(["--structural-steps", "3", "--max-bone-deviation", "0.25",
-                                   "--outlier-half-window", "3", "--outlier-distance", "0", "--seed", "4"])
-    baseline = shelf_jcsat.experiment_config(args, None).baseline
-    assert (baseline.outlier_half_window, baseline.outlier_distance, baseline.seed) == (3, 0.0, 4)
+    monkeypatch.delenv("MVMOCAP_DATA_ROOT", raising=False)
+
+    def parse(*argv: str) -> shelf_jcsat.Config:
+        return _cli.parse(shelf_jcsat.Config, argv, prog="shelf_jcsat", aliases=shelf_jcsat.ALIASES)
+
+    defaults = parse()
+    assert shelf_jcsat.experiment_config(defaults, None) == jcsat_study.ShelfExperimentConfig()
+    config = parse("--structural-steps", "3", "--max-bone-deviation", "0.25", "--outlier-half-window", "3",
+                   "--outlier-distance=0", "--baseline.seed", "4", "--seed", "5")
+    experiment = shelf_jcsat.experiment_config(config, None)
+    baseline = experiment.baseline
+    assert (baseline.outlier_half_window, baseline.outlier_distance, baseline.seed, experiment.seed) == (3, 0.0, 4, 5)
     assert (baseline.geometric.structural_steps, baseline.geometric.max_bone_deviation) == (3, 0.25)
-    with pytest.raises(SystemExit):
-        shelf_jcsat.parse_args(["--outlier-half-window", "2.5"])
-    with pytest.raises(ValueError, match="outlier_half_window"):
-        shelf_jcsat.experiment_config(shelf_jcsat.parse_args(["--outlier-half-window", "-1"]), None)
+    for bad, message in ((["--outlier-half-window", "2.5"], "--baseline.outlier-half-window"),
+                         (["--outlier-half-window", "-1"], "outlier_half_window")):
+        with pytest.raises(SystemExit) as exit_info:
+            parse(*bad)
+        assert exit_info.value.code == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and message in error, error

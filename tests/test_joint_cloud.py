@@ -1,6 +1,5 @@
 """Joint Cloud construction, K-Means, tracking and the model tensor."""
 
-import itertools
 
 import jax
 import jax.numpy as jnp

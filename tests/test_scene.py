@@ -106,16 +106,16 @@ def test_statistics_close_to_real_shelf_detections(data_root, scene):
 
 
 def test_preview_writes_png(tmp_path):
-    from mocap.preview import main
+    from experiments.preview_scene import Config, main
 
     out = tmp_path / "frame.png"
-    assert main(["--source", "synthetic", "--frame", "1", "--num-frames", "2", "--num-people", "2", "--out", str(out)]) == 0
+    main(Config(out=out, source="synthetic", frame=1, num_frames=2, num_people=2))
     assert out.stat().st_size > 10_000
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_preview_shelf_without_data_is_a_clear_error(tmp_path):
-    from mocap.preview import main
+    from experiments.preview_scene import Config
 
-    with pytest.raises(SystemExit, match="needs the real Shelf data"):
-        main(["--source", "shelf", "--out", str(tmp_path / "x.png"), "--data-root", str(tmp_path)])
+    with pytest.raises(ValueError, match="needs the real Shelf data"):
+        Config(source="shelf", out=tmp_path / "x.png", data_root=tmp_path)

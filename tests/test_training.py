@@ -59,6 +59,8 @@ def test_loop_resumes_bit_identically_and_refuses_misuse(tmp_path):
     assert records(tmp_path / "run") == records(tmp_path / "full")
     assert [r["step"] for r in records(tmp_path / "full")] == [1, 2, 3, 4, 5]
     assert "val" in records(tmp_path / "full")[-1] and records(tmp_path / "full")[2]["lr"] == pytest.approx(0.2)
+    run_json = json.loads((tmp_path / "full" / "run.json").read_text())  # what made the run (training.provenance)
+    assert {"versions", "git", "argv", "device", "started"} <= set(run_json) and run_json["versions"]["jax"]
     with pytest.raises(ValueError, match="log_interval must be >= 1"):
         training.run_training(tmp_path / "x", _Config(), full, _step, steps=1, resume=False, log_interval=0,
                               checkpoint_interval=1, validation_interval=1, validate=dict,

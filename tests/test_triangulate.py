@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 
 from experiments import bench_geometry
 from geometry import Camera, Triangulation, triangulate, triangulate_pixels, triangulate_point
-from geometry._triangulate import _triangulate_flat
 
 METHODS = ("closed_form", "svd")
 N = 32  # one batch size throughout, so most tests reuse a compilation
@@ -348,7 +347,7 @@ def test_triangulate_point_kernel_is_the_building_block():
 
 
 def test_benchmark_smoke(capsys):
-    bench_geometry.main(["--json", "--points", str(N), "--repeats", "1"])
+    bench_geometry.main(bench_geometry.Config(json=True, points=N, repeats=1))
     result = json.loads(capsys.readouterr().out)
     assert result["points"] == N and result["dtype"] == "float64"
     assert result["2view_closed_form_max_abs_diff_m"] < 1e-9

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 import time
 import warnings
@@ -15,6 +16,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 import tqdm
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from ._provenance import provenance
 
 __all__ = ["data_parallel_shardings", "run_training", "to_jsonable"]
 
@@ -107,7 +110,8 @@ def run_training(
     step i's randomness from ``fold_in(key, i)``), so that a resumed run repeats an uninterrupted one bit for
     bit. It returns the new state and the step's metrics.
 
-    Files in ``workdir``: ``config.json`` (``config``, a dataclass); ``log.jsonl``, one JSON object per
+    Files in ``workdir``: ``config.json`` (``config``, a dataclass); ``run.json`` (:func:`provenance` of the
+    latest invocation, resumed or not, and its start time); ``log.jsonl``, one JSON object per
     logged step (``step``, the metrics every ``log_interval`` steps with the ``learning_rate(i)`` as ``lr``
     and ``seconds_per_step``, ``validate(state)`` every ``validation_interval`` steps, both at the last);
     ``checkpoints/<step>/`` (orbax, atomic, the last two kept) every ``checkpoint_interval`` steps and at the
@@ -136,6 +140,10 @@ def run_training(
             state, latest = _restore_latest(manager, state)
         _truncate_log(log_path, 0 if latest is None else latest)
         config_path.write_text(config_json)
+        started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        run_json = workdir / "run.json.partial"
+        run_json.write_text(json.dumps({**provenance(), "started": started}, indent=2) + "\n")
+        run_json.replace(workdir / "run.json")  # atomic: never half a record
         state = jax.device_put(state, replicated)
 
         first = int(state.step)

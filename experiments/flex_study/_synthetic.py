@@ -51,15 +51,19 @@ class ExperimentConfig:
     """Everything the experiment's numbers depend on besides the models (written to ``results.json``)."""
 
     seed: int = 0
+    """Seed of the test samples and of their perturbed calibrations."""
     sequences: int = 16
     """Test samples per camera motion (static and dynamic), drawn from :data:`~flex.TEST_CLIPS`."""
     frames: int = 64
+    """Frames per test sample."""
     clips: tuple[str, ...] = TEST_CLIPS
+    """Clips the test samples are drawn from (held out of training)."""
     perturbations: tuple[float, ...] = (0.03, 0.04)
     """Relative standard deviations of the perturbed extrinsics (Table 1: 3 % and 4 %)."""
     n_steps: int = 3
     """SCA steps of Structural Triangulation."""
     plot_views: tuple[int, ...] = (0, 1)
+    """Views (one row each) whose camera-frame poses ``skeletons.png`` draws."""
     plot_frames: int = 4
     """Frames (evenly spaced) of the first dynamic sample drawn in ``skeletons.png``."""
 

@@ -52,6 +52,8 @@ class ShelfExperimentConfig:
     """Everything that determines a run (saved as ``config.json``)."""
 
     method: str = "jcsat"
+    """:data:`METHODS`: ``"jcsat"``, the model on the baseline's tracks, scored beside the baseline; ``"geometric"``,
+    the baseline alone (Joint Cloud -> K-Means people -> weighted medoid + re-triangulation)."""
     model: str | None = None
     """Folder written by :func:`~jcsat.train` (``<workdir>/model``); None: :data:`~jcsat.SHIPPED_MODEL`."""
     data_root: str | None = None
@@ -59,17 +61,21 @@ class ShelfExperimentConfig:
     quick: bool = False
     """Real: the first 60 test frames; synthetic: 40 frames of 3 people."""
     seed: int = 0
-    """Synthetic scene key and K-Means key."""
+    """Key of the synthetic scene (the baseline's K-Means key is ``baseline.seed``)."""
     synthetic_people: int = 4
+    """People in the synthetic scene (without Shelf data)."""
     synthetic_frames: int = 150
+    """Frames of the synthetic scene (without Shelf data)."""
     plot: bool = True
     """Write ``frame.png`` (Joint Cloud of one person, baseline, ground truth, reprojections)."""
     baseline: BaselineConfig = BaselineConfig()
+    """The geometric baseline, which also gives the model its tracks."""
     views: tuple[int, ...] | None = None
     """Cameras kept (0-based); the others' detections are dropped. None: all."""
     perturb_cameras: int = 0
     """Number of cameras (the first K kept ones) whose calibration is perturbed for the Joint Cloud."""
     perturb_seed: int = 0
+    """Key of that perturbation (up to 0.25 cm and 2.5 degrees, paper Table 8)."""
     aggregate: str = "mean"
     """How the model's windows become one pose per frame (:data:`~jcsat.AGGREGATES`): ``"mean"`` (offline, the
     windows containing the frame), the better on synthetic validation (``python -m experiments.shelf_validate

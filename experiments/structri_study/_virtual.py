@@ -62,9 +62,13 @@ class VirtualConfig:
     """Everything the experiment depends on (written to ``DIR/config.json``)."""
 
     seed: int = 0
+    """Seed of the pose draw and of the pixel noise."""
     patterns: tuple[str, ...] = ("round", "half")
+    """Camera ring patterns (:func:`geometry.structri_virtual_rig`)."""
     views: tuple[int, ...] = (2, 3, 4, 5, 6, 7, 8, 9, 10)
+    """Camera counts C of the grid."""
     sigmas: tuple[float, ...] = (2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0)
+    """Pixel noise standard deviations of the grid."""
     frames: int = 600
     """Poses drawn (without replacement, seeded) from all shipped clips after subsampling."""
     frame_stride: int = 10
@@ -72,12 +76,17 @@ class VirtualConfig:
     clips: tuple[str, ...] = ()
     """Shipped clip names; empty = all of :func:`mocap.list_clips`."""
     recentre: bool = True
+    """Put each pose's pelvis at the world origin (the paper's protocol; see the module docstring)."""
     up_axis: str = "z"
+    """``"z"``: a horizontal ring (the clips' world); ``"y"``: the official code's literal, vertical ``R_y`` ring."""
     n_steps: int = 3
+    """SCA steps of Structural Triangulation."""
     lagrangian_iterations: int = 200
+    """Iterations of the Lagrangian triangulation baseline."""
     reference_frames: int = 8
     """Frames per cell (the first ones drawn) solved by the certified reference."""
     estimate_frames: int = 10
+    """Frames per person whose LS bone lengths give the estimated lengths (ST*)."""
 
     def __post_init__(self) -> None:
         if not self.patterns or not set(self.patterns) <= set(_PATTERNS):

@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m mocap.preview --source synthetic --frame 10 --out synthetic.png --seed 0
-    python -m mocap.preview --source shelf --frame 10 --out shelf.png --data-root ../shared/data
+    python -m experiments.preview_scene --source synthetic --frame 10 --out synthetic.png --seed 0
+    python -m experiments.preview_scene --source shelf --frame 10 --out shelf.png --data-root PATH
 
 One panel per view shows the detections on a blank canvas of the view's image size (candidates as
 dots whose area grows with the score, coloured by person when known, by joint type otherwise; BODY25
@@ -14,16 +14,18 @@ skeletons in the world (metres, z up) with the cameras.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import os
-import sys
 from pathlib import Path
+from typing import Literal
 
+import jax
 import numpy as np
 
-__all__ = ["main", "draw_frame"]
-
-_DEFAULT_DATA_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data"
+import geometry
+import mocap
+from experiments import _cli
+from geometry import BODY25, SHELF14, SHELF15
 
 
 def _paf_limbs(det, pair_index: int, a: int, b: int, min_paf: float = 0.1) -> list[tuple[int, int]]:
@@ -69,10 +71,7 @@ def draw_frame(
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
-    import geometry
-    from geometry import BODY25
-
-    from ._detections import BODY25_PAF_PAIRS
+    from mocap._detections import BODY25_PAF_PAIRS
 
     n_views = len(detections)
     n_cols = 3
@@ -154,74 +153,69 @@ def draw_frame(
     fig.savefig(out)
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m mocap.preview",
-        description="Draw one frame: the 2D detections of every view (blank canvases of the image size) and "
-        "the 3D ground truth with the cameras, to a PNG.",
-    )
-    parser.add_argument("--source", choices=("synthetic", "shelf"), default="synthetic",
-                        help="synthetic: a scene from mocap.synthesize_scene on the Shelf rig; shelf: the real "
-                        "Shelf OpenPose detections and actorsGT ground truth (needs --data-root)")
-    parser.add_argument("--frame", type=int, default=0,
-                        help="frame index: scene frame for synthetic; detection frame k (0..300) for shelf, "
-                        "shown with actorsGT frame 300 + k")
-    parser.add_argument("--out", required=True, help="output PNG path")
-    parser.add_argument("--data-root", default=os.environ.get("MVMOCAP_DATA_ROOT", str(_DEFAULT_DATA_ROOT)),
-                        help="folder with shelf/ (the real data; default $MVMOCAP_DATA_ROOT or ../shared/data next "
-                        "to the repository)")
-    parser.add_argument("--seed", type=int, default=0, help="synthetic only: the PRNG seed of the scene")
-    parser.add_argument("--num-people", type=int, default=4, help="synthetic only: people in the scene")
-    parser.add_argument("--num-frames", type=int, default=None,
-                        help="synthetic only: frames simulated (default frame + 1; the scene depends on it)")
-    parser.add_argument("--rig", choices=("shelf", "campus"), default="shelf",
-                        help="synthetic only: the camera rig the scene is seen by")
-    return parser
+@dataclasses.dataclass(frozen=True)
+class Config:
+    out: Path
+    """Output PNG path."""
+    source: Literal["synthetic", "shelf"] = "synthetic"
+    """synthetic: a scene from mocap.synthesize_scene on the Shelf rig; shelf: the real Shelf OpenPose detections
+    and actorsGT ground truth (needs a data folder)."""
+    frame: int = 0
+    """Frame index: scene frame for synthetic; detection frame k (0..300) for shelf, shown with actorsGT frame
+    300 + k."""
+    data_root: Path | None = None
+    """Folder with shelf/ (the real data; default $MVMOCAP_DATA_ROOT)."""
+    seed: int = 0
+    """Synthetic only: the PRNG seed of the scene."""
+    num_people: int = 4
+    """Synthetic only: people in the scene."""
+    num_frames: int | None = None
+    """Synthetic only: frames simulated (default frame + 1; the scene depends on it)."""
+    rig: Literal["shelf", "campus"] = "shelf"
+    """Synthetic only: the camera rig the scene is seen by."""
+
+    def __post_init__(self) -> None:
+        if self.frame < 0:
+            raise ValueError(f"--frame must be >= 0, got {self.frame}")
+        if self.source == "synthetic" and self.num_frames is not None and self.frame >= self.num_frames:
+            raise ValueError(f"--frame {self.frame} is outside the {self.num_frames} simulated frames")
+        if self.source == "shelf":
+            root = mocap.find_data_root(self.data_root)
+            needed = [] if root is None else [root / "shelf" / "actorsGT.mat",
+                                              root / "shelf" / "4d_association" / "detection" / "0.txt"]
+            missing = [str(p) for p in needed if not p.is_file()]
+            if root is None or missing:
+                raise ValueError("--source shelf needs the real Shelf data; "
+                                 + (f"missing: {', '.join(missing)}" if missing else "no data folder")
+                                 + " (pass --data-root or set $MVMOCAP_DATA_ROOT to the folder with shelf/)")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    if args.frame < 0:
-        raise SystemExit("--frame must be >= 0")
-    import jax
-
-    import geometry
-    import mocap
-    from geometry import SHELF14, SHELF15
-
-    geometry.disable_faulty_cpu_fusion()
-    jax.config.update("jax_enable_x64", True)
-
-    if args.source == "synthetic":
-        num_frames = args.frame + 1 if args.num_frames is None else args.num_frames
-        if args.frame >= num_frames:
-            raise SystemExit(f"--frame {args.frame} is outside the {num_frames} simulated frames")
-        rig = mocap.shelf_cameras() if args.rig == "shelf" else mocap.campus_cameras()
-        scene = mocap.synthesize_scene(jax.random.key(args.seed), rig, num_people=args.num_people, num_frames=num_frames)
-        f = args.frame
-        title = (f"synthetic scene, seed {args.seed}, frame {f}: "
+def main(config: Config) -> None:
+    if config.source == "synthetic":
+        num_frames = config.frame + 1 if config.num_frames is None else config.num_frames
+        rig = mocap.shelf_cameras() if config.rig == "shelf" else mocap.campus_cameras()
+        scene = mocap.synthesize_scene(jax.random.key(config.seed), rig, num_people=config.num_people,
+                                       num_frames=num_frames)
+        f = config.frame
+        title = (f"synthetic scene, seed {config.seed}, frame {f}: "
                  + ", ".join(sorted(set(n.split("[")[0] for n in scene.placement.names))))
-        draw_frame(args.out, rig, scene.detections[f], scene.shelf15[f], SHELF15, title, mocap.capture_area(rig))
+        figure = (rig, scene.detections[f], scene.shelf15[f], SHELF15, title, mocap.capture_area(rig))
     else:
-        root = Path(args.data_root)
-        needed = [root / "shelf" / "actorsGT.mat", root / "shelf" / "4d_association" / "detection" / "0.txt"]
-        missing = [str(p) for p in needed if not p.is_file()]
-        if missing:
-            raise SystemExit(f"--source shelf needs the real Shelf data; missing: {', '.join(missing)} "
-                             "(pass --data-root pointing at the folder with shelf/)")
+        root = mocap.find_data_root(config.data_root)
         frames, gt_index = mocap.load_shelf_detections(root)
-        if args.frame >= len(frames):
-            raise SystemExit(f"--frame {args.frame} is outside the {len(frames)} Shelf detection frames")
+        if config.frame >= len(frames):
+            raise ValueError(f"--frame {config.frame} is outside the {len(frames)} Shelf detection frames")
         positions, annotated = mocap.load_shelf_ground_truth(root)
-        g = int(gt_index[args.frame])
+        g = int(gt_index[config.frame])
         truth = positions[annotated[:, g], g]
-        rig = mocap.shelf_cameras(root)
-        title = (f"Shelf, detection frame {args.frame} = actorsGT frame {g}: "
+        title = (f"Shelf, detection frame {config.frame} = actorsGT frame {g}: "
                  f"{len(truth)} annotated actors (OpenPose BODY25, limbs by best PAF)")
-        draw_frame(args.out, rig, frames[args.frame], truth, SHELF14, title)
-    print(f"wrote {args.out}")
-    return 0
+        figure = (mocap.shelf_cameras(root), frames[config.frame], truth, SHELF14, title)
+    partial = config.out.with_name(f".{config.out.name}.partial.png")
+    draw_frame(partial, *figure)
+    partial.replace(config.out)  # atomic: never half a PNG under the name asked for
+    print(f"wrote {config.out}")
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, Config, description=__doc__, float64=True)

@@ -1,0 +1,127 @@
+"""The one command-line runner of every ``python -m experiments.NAME`` entry point.
+
+An entry point is a frozen config dataclass (its fields and their docstrings are the options and their
+``--help``; its ``__post_init__`` validates them) and a ``main(config)``::
+
+    if __name__ == "__main__":
+        _cli.run(main, Config, description=__doc__)
+
+:func:`run` configures the runtime before any computation, parses the options with tyro, and turns every
+failure into one line ``prog: error: message`` with exit status 2 (``--debug``: the traceback instead).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+import sys
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import NoReturn, TypeVar
+
+import tyro
+
+import geometry
+
+from ._run_folder import run_folder as run_folder
+
+__all__ = ["parse", "run", "run_folder"]
+
+C = TypeVar("C")
+
+DEBUG_HELP = "Every command also takes --debug: on an error, show the full traceback instead of one line."
+
+def _one_line(tyro_message: str) -> str:
+    """The first section of tyro's boxed error message, on one line."""
+    lines = []
+    for line in tyro_message.splitlines():
+        text = line.strip().strip("│╭╮╰╯").strip()
+        if lines and text and set(text) <= {"─"}:
+            break
+        if text and not line.lstrip().startswith(("╭", "╰")):
+            lines.append(text)
+    return " ".join(lines) or tyro_message.strip()
+
+
+def _fail(prog: str, message: str) -> NoReturn:
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def _rename_aliases(argv: Sequence[str], aliases: Mapping[str, str]) -> list[str]:
+    """``argv`` with each old option name (``--old`` or ``--old=value``) replaced by its current name."""
+    renamed = []
+    for arg in argv:
+        name, equals, value = arg.partition("=")
+        renamed.append(aliases[name] + equals + value if name in aliases else arg)
+    return renamed
+
+
+def _prog(main: Callable) -> str:
+    return f"python -m experiments.{Path(sys.modules[main.__module__].__file__).stem}"
+
+
+def parse(config_type: type[C], argv: Sequence[str], *, prog: str, description: str | None = None,
+          aliases: Mapping[str, str] | None = None, debug: bool = False) -> C:
+    """The ``config_type`` that ``argv`` (without ``--debug``) describes; ``--help`` exits 0 and a bad option
+    exits 2 with one line ``prog: error: ...`` on stderr (``debug``: tyro's full message and traceback too).
+    ``aliases``: old option names still accepted, mapped to their current names."""
+    description = f"{description or ''}\n\n{DEBUG_HELP}".strip()
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            config = tyro.cli(config_type, args=_rename_aliases(argv, aliases or {}), prog=prog,
+                              description=description)
+    except SystemExit as exit_:
+        if exit_.code in (0, None):
+            raise
+        if debug:
+            sys.stderr.write(captured.getvalue())
+        message = _one_line(captured.getvalue())
+        # tyro reports a ValueError of a config's __post_init__ as "Error parsing <Config>: <its message>".
+        refused, count = re.subn(r"^Error parsing (?!-)[\w.]+: ", "", message)
+        _fail(prog, refused if count else f"{message} (see --help)")
+    except ValueError as error:  # a config's __post_init__ refused an option
+        if debug:
+            traceback.print_exc()
+        _fail(prog, str(error))
+    sys.stderr.write(captured.getvalue())  # tyro's warnings, if any
+    return config
+
+
+def run(main: Callable[[C], object], config_type: type[C], *, description: str | None = None,
+        float64: bool | Callable[[C], bool] = False, aliases: Mapping[str, str] | None = None,
+        argv: Sequence[str] | None = None) -> NoReturn:
+    """Parse ``argv`` (default ``sys.argv[1:]``) into a ``config_type`` (:func:`parse`), run ``main(config)``
+    and exit.
+
+    ``float64``: whether the run needs ``jax_enable_x64`` (a function of the config where an option decides);
+    it is set explicitly either way, with XLA's faulty CPU fusion turned off, before ``main`` starts.
+    Exit status: 0 on success, 2 for a bad option or any error (one line ``prog: error: ...`` on stderr;
+    ``--debug``: the traceback instead), 130 when interrupted.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    prog = _prog(main)
+    geometry.disable_faulty_cpu_fusion()
+    config = parse(config_type, [arg for arg in argv if arg != "--debug"], prog=prog, description=description,
+                   aliases=aliases, debug=debug)
+
+    import jax
+
+    jax.config.update("jax_enable_x64", float64(config) if callable(float64) else float64)
+    try:
+        status = main(config)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
+    except Exception as error:  # noqa: BLE001 - every failure becomes one line; --debug shows where
+        if debug:
+            traceback.print_exc()
+        message = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        if not isinstance(error, (ValueError, OSError)):  # say what kind of failure an unexpected one is
+            message = f"{type(error).__name__}: {message}".rstrip(": ")
+        _fail(prog, message + ("" if debug else " (rerun with --debug for the traceback)"))
+    raise SystemExit(status if isinstance(status, int) else 0)
