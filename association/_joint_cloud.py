@@ -150,7 +150,7 @@ def _views(rig: Camera, xy: Float[Array, "V J C 2"]) -> _Views:
     homogeneous = jnp.concatenate([normalised, jnp.ones_like(normalised[..., :1])], axis=-1)
     # World ray direction R^T x_norm, as a broadcast-sum (tiny matmuls are slow under vmap).
     rays = jnp.sum(rig.R[:, None, None, :, :] * homogeneous[..., :, None], axis=-2)
-    return _Views(undistorted, rays, geometry.projection_matrix(rig), geometry.camera_center(rig))
+    return _Views(undistorted, rays, geometry.projection_matrix(rig), geometry.camera_centre(rig))
 
 
 def joint_cloud_frame(

@@ -37,10 +37,10 @@ def make_scene(num_points: int, num_views: int, seed: int) -> tuple[np.ndarray, 
     for view in range(num_views):
         yaw = np.deg2rad(-40 + 80 * view / max(num_views - 1, 1))
         rotation = cv2.Rodrigues(np.array([rng.normal(0, 0.03), yaw, rng.normal(0, 0.03)]))[0]
-        center = np.array([6.5 * np.sin(yaw), rng.normal(0, 0.2), 6.5 - 6.5 * np.cos(yaw)])
+        centre = np.array([6.5 * np.sin(yaw), rng.normal(0, 0.2), 6.5 - 6.5 * np.cos(yaw)])
         focal = rng.uniform(800, 1000)
         K = np.array([[focal, 0, 640], [0, focal, 360], [0, 0, 1]])
-        projections.append(K @ np.hstack([rotation, -(rotation @ center)[:, None]]))
+        projections.append(K @ np.hstack([rotation, -(rotation @ centre)[:, None]]))
     projections = np.stack(projections)
     points = np.column_stack([rng.uniform(-1.5, 1.5, num_points), rng.uniform(-1, 1, num_points), rng.uniform(-3.5, 3.5, num_points)])
     points[:, 2] += 6.5  # depth 3-10 m from the arc's middle camera

@@ -62,7 +62,7 @@ def main(config: Config) -> None:
         rig, source = mocap.shelf_cameras(data_root), "real Shelf OpenPose detections"
         detections, frame_indices = detections[:config.frames], frame_indices[:config.frames]
     else:
-        scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=config.frames)
+        scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=config.frames)
         detections, rig, frame_indices = scene.detections, scene.rig, np.arange(config.frames)
         source = "synthetic 4-person Shelf-rig scene"
     association.run_geometric_baseline(rig, detections, frame_indices)  # compiles; the second run is timed

@@ -53,7 +53,7 @@ def main(config: Config) -> None:
         detections, _ = mocap.load_shelf_detections(data_root)
         rig, source = mocap.shelf_cameras(data_root), "real Shelf OpenPose detections"
     else:
-        scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=config.frames)
+        scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=4, num_frames=config.frames)
         detections, rig, source = scene.detections, scene.rig, "synthetic 4-person Shelf-rig scene"
     detections = (detections * (config.frames // len(detections) + 1))[: config.frames]
     padded = mocap.pad_detections(detections)

@@ -121,7 +121,7 @@ def draw_frame(
         ax.tick_params(labelsize=7)
 
     ax = fig.add_subplot(n_rows, n_cols, n_views + 1, projection="3d")
-    centres = np.asarray(geometry.camera_center(rig))
+    centres = np.asarray(geometry.camera_centre(rig))
     axes = np.asarray(rig.R)[:, 2]
     for v in range(n_views):
         tip = centres[v] + 0.6 * axes[v]
@@ -158,7 +158,7 @@ class Config:
     out: Path
     """Output PNG path."""
     source: Literal["synthetic", "shelf"] = "synthetic"
-    """synthetic: a scene from mocap.synthesize_scene on the Shelf rig; shelf: the real Shelf OpenPose detections
+    """synthetic: a scene from mocap.synthesise_scene on the Shelf rig; shelf: the real Shelf OpenPose detections
     and actorsGT ground truth (needs a data folder)."""
     frame: int = 0
     """Frame index: scene frame for synthetic; detection frame k (0..300) for shelf, shown with actorsGT frame
@@ -194,7 +194,7 @@ def main(config: Config) -> None:
     if config.source == "synthetic":
         num_frames = config.frame + 1 if config.num_frames is None else config.num_frames
         rig = mocap.shelf_cameras() if config.rig == "shelf" else mocap.campus_cameras()
-        scene = mocap.synthesize_scene(jax.random.key(config.seed), rig, num_people=config.num_people,
+        scene = mocap.synthesise_scene(jax.random.key(config.seed), rig, num_people=config.num_people,
                                        num_frames=num_frames)
         f = config.frame
         title = (f"synthetic scene, seed {config.seed}, frame {f}: "

@@ -26,7 +26,7 @@ from ._calibration_io import load_4dassociation_calibration as load_4dassociatio
 from ._calibration_io import load_projection_matrices as load_projection_matrices
 from ._calibration_io import load_voxelpose_calibration as load_voxelpose_calibration
 from ._camera import Camera as Camera
-from ._camera import camera_center as camera_center
+from ._camera import camera_centre as camera_centre
 from ._camera import camera_from_projection as camera_from_projection
 from ._camera import crop_camera_to_translation as crop_camera_to_translation
 from ._camera import depth as depth

@@ -37,7 +37,7 @@ __all__ = [
     "project",
     "project_to_views",
     "undistort_points",
-    "camera_center",
+    "camera_centre",
     "projection_matrix",
     "camera_from_projection",
     "look_at",
@@ -224,13 +224,13 @@ def undistort_points(
     camera: Camera,
     pixels: Float[ArrayLike, "*n 2"],
     *,
-    output: Literal["normalized", "pixels"] = "normalized",
+    output: Literal["normalised", "pixels"] = "normalised",
     fixed_point_iterations: int = 5,
     newton_iterations: int = 3,
 ) -> Float[Array, "*n 2"]:
     """Remove lens distortion from observed pixels (any leading axes) of one camera.
 
-    ``output="normalized"`` returns ideal normalised coordinates ``x_cam[:2] / x_cam[2]`` (unitless),
+    ``output="normalised"`` returns ideal normalised coordinates ``x_cam[:2] / x_cam[2]`` (unitless),
     like ``cv2.undistortPoints(px, K, dist)``; ``output="pixels"`` returns the ideal (undistorted)
     pixels ``K @ [x, y, 1]``, like ``cv2.undistortPoints(px, K, dist, P=K)``.
 
@@ -242,7 +242,7 @@ def undistort_points(
     it). OpenCV's fallback for a negative radial factor (a point outside the lens model's valid
     range) is not reproduced: such points give meaningless values, as the model has no inverse there."""
     _check_single(camera, "undistort_points")
-    if output not in ("normalized", "pixels"):
+    if output not in ("normalised", "pixels"):
         raise ValueError(f"output must be 'normalized' or 'pixels', got {output!r}")
 
     pixels = jnp.asarray(pixels)
@@ -260,7 +260,7 @@ def _undistort_pixel(
     return _normalised_to_pixels(K, xy) if output == "pixels" else xy
 
 
-def camera_center(camera: Camera) -> Float[Array, "*views 3"]:
+def camera_centre(camera: Camera) -> Float[Array, "*views 3"]:
     """Camera centre in world coordinates (metres), ``-R^T t``; works for one camera or a rig."""
     return -jnp.sum(camera.R * camera.t[..., :, None], axis=-2)
 

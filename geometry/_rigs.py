@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Float, PRNGKeyArray
 
-from ._camera import Camera, camera_center, look_at
+from ._camera import Camera, camera_centre, look_at
 from ._rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 __all__ = [
@@ -158,7 +158,7 @@ def _bounded_one(
     axis = axis / jnp.linalg.norm(axis)
     angle = jax.random.uniform(angle_key, (), dtype, -max_rotation, max_rotation)
     R = jnp.sum(camera.R[:, :, None] * axis_angle_to_matrix(angle * axis)[None, :, :], axis=1)
-    centre = camera_center(camera) + offset
+    centre = camera_centre(camera) + offset
     return camera._replace(R=R, t=-jnp.sum(R * centre[None, :], axis=-1))
 
 

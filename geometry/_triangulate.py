@@ -139,7 +139,7 @@ def _dot(a: Vector4, b: Vector4) -> Scalar:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
 
 
-def _normalized(v: Vector4) -> Vector4:
+def _normalised(v: Vector4) -> Vector4:
     norm = jnp.sqrt(_dot(v, v))
     safe = jnp.where(norm > 0, norm, 1)
     return [component / safe for component in v]
@@ -149,7 +149,7 @@ def _dlt_problem(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "views 2"],
     weights: Float[Array, "views"],
-    normalize_rows: bool,
+    normalise_rows: bool,
 ) -> _DltProblem:
     rows, row_scales = [], []
     for view in range(projections.shape[0]):
@@ -159,7 +159,7 @@ def _dlt_problem(
             coordinate = jnp.where(used, points[view, axis], 0)
             row = [coordinate * projections[view, 2, j] - projections[view, axis, j] for j in range(4)]
             scale = jnp.where(used, weights[view], 0)
-            if normalize_rows:
+            if normalise_rows:
                 norm = jnp.sqrt(_dot(row, row))
                 scale = scale / jnp.where(norm > 0, norm, 1)
             rows.append([scale * entry for entry in row])
@@ -229,7 +229,7 @@ def _smallest_eigenvector(normal: Matrix4) -> Vector4:
     for _ in range(_POWER_STEPS):
         scaled = [scale[i] * v[i] for i in range(4)]
         v = [scale[i] * _dot(adj[i], scaled) * inverse_trace for i in range(4)]
-    return _normalized(v)
+    return _normalised(v)
 
 
 @_smallest_eigenvector.defjvp
@@ -353,7 +353,7 @@ def triangulate_point(
     points: Float[Array, "views 2"],
     weights: Float[Array, "views"],
     method: Method = "closed_form",
-    normalize_rows: bool = False,
+    normalise_rows: bool = False,
     max_distance: float = 1e4,
 ) -> Triangulation:
     """Weighted DLT triangulation of ONE point from ``views`` undistorted pixel observations.
@@ -365,13 +365,13 @@ def triangulate_point(
         points: undistorted pixel coordinates; may be NaN where the weight is 0.
         weights: non-negative per-view weights multiplying the DLT rows; 0 masks a view.
         method: ``"closed_form"`` (fast, element-wise) or ``"svd"`` (LAPACK reference).
-        normalize_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
+        normalise_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
         max_distance: points farther than this from the world origin (metres) are reported invalid.
 
     Returns:
         A :class:`Triangulation` without batch dimensions.
     """
-    problem = _dlt_problem(projections, points, weights, normalize_rows)
+    problem = _dlt_problem(projections, points, weights, normalise_rows)
     v = _KERNELS[method](problem)
     conditioning = _conditioning(problem)
     finite = jnp.abs(v[3]) * max_distance > jnp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
@@ -444,18 +444,18 @@ def _check_inputs(projections: Array, points: Array, weights: ArrayLike | None, 
     raise AssertionError("unreachable: _has_bad_values and the host checks disagree")
 
 
-@partial(jax.jit, static_argnames=("method", "normalize_rows", "max_distance"))
+@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance"))
 def _triangulate_flat(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "n views 2"],
     weights: Float[Array, "n views"] | None,
     method: Method,
-    normalize_rows: bool,
+    normalise_rows: bool,
     max_distance: float,
 ) -> Triangulation:
     if weights is None:
         weights = jnp.ones(points.shape[:-1], points.dtype)
-    kernel = partial(triangulate_point, method=method, normalize_rows=normalize_rows, max_distance=max_distance)
+    kernel = partial(triangulate_point, method=method, normalise_rows=normalise_rows, max_distance=max_distance)
     return jax.vmap(kernel, in_axes=(None, 0, 0))(projections, points, weights)
 
 
@@ -476,7 +476,7 @@ def triangulate(
     weights: Float[ArrayLike, "*batch views"] | None = None,
     *,
     method: Method = "closed_form",
-    normalize_rows: bool = False,
+    normalise_rows: bool = False,
     max_distance: float = 1e4,
 ) -> Triangulation:
     """Triangulate points with any leading batch dimensions (points, joints, frames) from shared cameras.
@@ -491,7 +491,7 @@ def triangulate(
         weights: ``(*batch, views)``, non-negative, multiplying each view's DLT rows; 0 masks a view.
             Default: all ones (two views then give exactly ``cv2.triangulatePoints``).
         method: ``"closed_form"`` (fast, element-wise; default) or ``"svd"`` (LAPACK reference).
-        normalize_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
+        normalise_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
         max_distance: points farther than this from the world origin (metres) are reported invalid.
 
     Returns:
@@ -506,24 +506,24 @@ def triangulate(
     weights = _check_inputs(projections, points, weights, method)
     views = projections.shape[0]
     flat = _triangulate_flat(
-        projections, _flatten(points, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalize_rows, float(max_distance)
+        projections, _flatten(points, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalise_rows, float(max_distance)
     )
     return _unflatten(flat, points.shape[:-2])
 
 
-@partial(jax.jit, static_argnames=("method", "normalize_rows", "max_distance"))
+@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance"))
 def _triangulate_pixels_flat(
     rig: Camera,
     pixels: Float[Array, "n views 2"],
     weights: Float[Array, "n views"] | None,
     method: Method,
-    normalize_rows: bool,
+    normalise_rows: bool,
     max_distance: float,
 ) -> Triangulation:
     by_view = jnp.moveaxis(pixels, 1, 0)
     undistorted = jax.vmap(partial(undistort_points, output="pixels"))(rig, by_view)
     return _triangulate_flat(
-        projection_matrix(rig), jnp.moveaxis(undistorted, 0, 1), weights, method, normalize_rows, max_distance
+        projection_matrix(rig), jnp.moveaxis(undistorted, 0, 1), weights, method, normalise_rows, max_distance
     )
 
 
@@ -533,7 +533,7 @@ def triangulate_pixels(
     weights: Float[ArrayLike, "*batch views"] | None = None,
     *,
     method: Method = "closed_form",
-    normalize_rows: bool = False,
+    normalise_rows: bool = False,
     max_distance: float = 1e4,
 ) -> Triangulation:
     """Like :func:`triangulate`, from a stacked ``Camera`` rig and observed (distorted) pixels.
@@ -547,6 +547,6 @@ def triangulate_pixels(
     weights = _check_inputs(projection_matrix(rig), pixels, weights, method)
     views = rig.K.shape[0]
     flat = _triangulate_pixels_flat(
-        rig, _flatten(pixels, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalize_rows, float(max_distance)
+        rig, _flatten(pixels, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalise_rows, float(max_distance)
     )
     return _unflatten(flat, pixels.shape[:-2])

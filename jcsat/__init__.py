@@ -39,7 +39,7 @@ from ._otap import otap as otap
 from ._otap import sinkhorn_plan as sinkhorn_plan
 from ._train import init_state as init_state
 from ._train import learning_rate_schedule as learning_rate_schedule
-from ._train import make_optimizer as make_optimizer
+from ._train import make_optimiser as make_optimiser
 from ._train import train as train
 from ._train import TRAIN_CONFIGS as TRAIN_CONFIGS
 from ._train import train_step as train_step

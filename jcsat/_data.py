@@ -1,6 +1,6 @@
 """Training windows for the JCSAT model from synthetic Shelf-rig scenes (paper Sec. 4.1.3, reference sections 3-5).
 
-A scene (:func:`mocap.synthesize_scene`: the shipped Shelf calibration, CMU clips, the realistic
+A scene (:func:`mocap.synthesise_scene`: the shipped Shelf calibration, CMU clips, the realistic
 detector) goes through exactly the test-time path, :func:`~association.track_people`: detections -> Joint Cloud ->
 per-frame K-Means persons -> tracks -> :func:`~association.person_joint_cloud`. Ground truth never enters that path; it
 is used only afterwards, to label each (track, frame) with the ground-truth person whose BODY25 mid-hip
@@ -66,7 +66,7 @@ class DataConfig:
     clips: tuple[str, ...] = TRAIN_CLIPS
     num_scenes: int = 16
     first_seed: int = 0
-    """Scene i is ``mocap.synthesize_scene(jax.random.key(first_seed + i), ...)``; K-Means uses the same key."""
+    """Scene i is ``mocap.synthesise_scene(jax.random.key(first_seed + i), ...)``; K-Means uses the same key."""
     num_people: int = 4
     num_frames: int = 150
     window: int = 10
@@ -250,7 +250,7 @@ def build_dataset(config: DataConfig, cache_dir: str | Path | None = None, *, wo
 def _seeded_scene_windows(config: DataConfig, seed: int, index: int) -> WindowDataset:
     clips = [mocap.load_clip(name) for name in config.clips]
     key = jax.random.key(seed)
-    scene = mocap.synthesize_scene(key, mocap.shelf_cameras(), num_people=config.num_people,
+    scene = mocap.synthesise_scene(key, mocap.shelf_cameras(), num_people=config.num_people,
                                    num_frames=config.num_frames, clips=clips)
     return scene_windows(scene, config, key, index)
 

@@ -43,7 +43,7 @@ from ._losses import LossConfig, jcsat_loss
 from ._model import CONFIGS, JCSAT, JCSATConfig, load_model
 
 __all__ = [
-    "TrainConfig", "TrainState", "init_state", "learning_rate_schedule", "make_optimizer", "train_step", "train",
+    "TrainConfig", "TrainState", "init_state", "learning_rate_schedule", "make_optimiser", "train_step", "train",
     "TRAIN_CONFIGS",
 ]
 
@@ -136,7 +136,7 @@ class TrainState(NamedTuple):
 
 def init_state(config: TrainConfig, params: Any, rest: Any) -> TrainState:
     """Step 0: fresh optimiser state for ``params`` and the run's key ``key(config.seed)``."""
-    opt_state = make_optimizer(config.weight_decay, config.grad_clip).init(params)
+    opt_state = make_optimiser(config.weight_decay, config.grad_clip).init(params)
     return TrainState(params, rest, opt_state, jnp.asarray(0, jnp.int32), jax.random.key(config.seed))
 
 
@@ -154,7 +154,7 @@ def _matrices(params: Any) -> Any:
 
 
 @cache
-def make_optimizer(weight_decay: float, grad_clip: float | None = None) -> optax.GradientTransformation:
+def make_optimiser(weight_decay: float, grad_clip: float | None = None) -> optax.GradientTransformation:
     """AdamW (beta 0.9, 0.999) less its step size, decaying only parameters with ndim >= 2, after global-norm
     clipping to ``grad_clip`` (None: none). :func:`train_step` scales by the step's learning rate, a value, so
     runs that differ only in their schedule share one compiled step; equal settings give the same (cached)
@@ -165,16 +165,16 @@ def make_optimizer(weight_decay: float, grad_clip: float | None = None) -> optax
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
 def train_step(
-    graphdef: nnx.GraphDef, losses: LossConfig, optimizer: optax.GradientTransformation, replicated: NamedSharding,
+    graphdef: nnx.GraphDef, losses: LossConfig, optimiser: optax.GradientTransformation, replicated: NamedSharding,
     state: TrainState, batch: Batch, key: jax.Array, learning_rate: ArrayLike,
 ) -> tuple[TrainState, dict[str, jax.Array]]:
     """One AdamW step on ``batch`` (Eq. 15) at ``learning_rate``; ``key`` drives the model's candidate masking and
-    dropout; ``optimizer`` is :func:`make_optimizer`'s.
+    dropout; ``optimiser`` is :func:`make_optimiser`'s.
 
     Pure: the new state and the step's metrics (each loss term, the total, the gradient norm). With
     the batch sharded along its first axis, each device computes its part of the batch and the
     gradient is reduced across devices; the new state is constrained to ``replicated``. The static
-    arguments are hashable, so every :func:`train` call with the same model, losses and optimizer settings
+    arguments are hashable, so every :func:`train` call with the same model, losses and optimiser settings
     reuses one compilation, whatever its schedule.
     """
 
@@ -185,7 +185,7 @@ def train_step(
         return total, (terms, nnx.state(model, nnx.Not(nnx.Param)))
 
     (total, (terms, rest)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
-    direction, opt_state = optimizer.update(grads, state.opt_state, state.params)
+    direction, opt_state = optimiser.update(grads, state.opt_state, state.params)
     params = optax.apply_updates(state.params, optax.tree.scale(-learning_rate, direction))
     new_state = TrainState(params, rest, opt_state, state.step + 1, state.key)
     metrics = {"loss": total, **terms, "grad_norm": optax.tree.norm(grads)}
@@ -256,12 +256,12 @@ def train(
             raise ValueError(f"init_model {config.init_model} is a {start.config} model, not the run's {model_config}")
         nnx.update(model, nnx.state(start, nnx.Param))
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
-    optimizer, schedule = make_optimizer(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
+    optimiser, schedule = make_optimiser(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
 
     def step(state: TrainState, i: int) -> tuple[TrainState, dict[str, jax.Array]]:
         sample_key, mask_key = jax.random.split(jax.random.fold_in(state.key, i))
         batch = _sample(train_data, sample_key, config.batch_size, config.data.window)
-        return train_step(graphdef, config.losses, optimizer, replicated, state, jax.device_put(batch, batch_sharding),
+        return train_step(graphdef, config.losses, optimiser, replicated, state, jax.device_put(batch, batch_sharding),
                           mask_key, schedule(i))
 
     eval_fn = partial(_eval_step, graphdef)

@@ -77,7 +77,7 @@ from ._scene import capture_area as capture_area
 from ._scene import compose_scene as compose_scene
 from ._scene import motion_group as motion_group
 from ._scene import place_groups as place_groups
-from ._scene import synthesize_scene as synthesize_scene
+from ._scene import synthesise_scene as synthesise_scene
 from ._shelf_campus import FOUR_D_ASSOCIATION_PAF_EXPONENT as FOUR_D_ASSOCIATION_PAF_EXPONENT
 from ._shelf_campus import PersonSkeleton as PersonSkeleton
 from ._shelf_campus import SHELF_DETECTION_FIRST_FRAME as SHELF_DETECTION_FIRST_FRAME

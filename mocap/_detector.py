@@ -390,7 +390,7 @@ def _camera_frame_kernel(
     apparent_height = fy * stature / hip_depth
 
     lateral = (people[:, _J("l_shoulder")] - people[:, _J("r_shoulder")]) + (people[:, _J("l_hip")] - people[:, _J("r_hip")])
-    ray = people[:, _J("mid_hip")] - geometry.camera_center(camera)[None, :]
+    ray = people[:, _J("mid_hip")] - geometry.camera_centre(camera)[None, :]
     cosine = jnp.sum(lateral * ray, axis=-1) / jnp.maximum(
         jnp.sqrt(jnp.sum(lateral * lateral, axis=-1) * jnp.sum(ray * ray, axis=-1)), 1e-12
     )

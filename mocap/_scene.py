@@ -1,6 +1,6 @@
 """Synthetic multi-person, multi-view scenes: real motion clips placed on a floor, seen by a rig.
 
-:func:`synthesize_scene` takes people from the shipped motion clips (the two partners of a salsa
+:func:`synthesise_scene` takes people from the shipped motion clips (the two partners of a salsa
 pair always together, keeping their interaction), places them on the z = 0 floor with random
 ground-plane offsets, headings and time shifts such that no two root trajectories come closer than
 ``min_separation`` at any frame, and runs the detector model (:func:`~mocap.detect`) on them. The
@@ -28,7 +28,7 @@ from ._detector import DetectorConfig, DetectorEvents, _numpy_rng, detect_with_e
 from ._procedural import procedural_clip
 
 __all__ = [
-    "Scene", "ScenePlacement", "MotionGroup", "capture_area", "place_groups", "compose_scene", "synthesize_scene",
+    "Scene", "ScenePlacement", "MotionGroup", "capture_area", "place_groups", "compose_scene", "synthesise_scene",
     "motion_group",
 ]
 
@@ -99,7 +99,7 @@ def capture_area(rig: Camera, half_size_fraction: float = 0.4) -> tuple[float, f
     Its centre is the point nearest (least squares) to all optical axes, dropped onto the z = 0
     floor; its half side is ``half_size_fraction`` times the median horizontal distance from that
     centre to the cameras (1.4 m for the Shelf rig)."""
-    centres = np.asarray(geometry.camera_center(rig), np.float64).reshape(-1, 3)
+    centres = np.asarray(geometry.camera_centre(rig), np.float64).reshape(-1, 3)
     axes = np.asarray(rig.R, np.float64).reshape(-1, 3, 3)[:, 2]
     # Least-squares point p minimising the distances to the lines centre + s * axis.
     projector = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
@@ -277,7 +277,7 @@ def motion_group(clip: Clip) -> MotionGroup:
     return MotionGroup(names, np.swapaxes(clip.body25, 0, 1), np.swapaxes(clip.structri17, 0, 1))
 
 
-def synthesize_scene(
+def synthesise_scene(
     key: ArrayLike,
     rig: Camera,
     *,

@@ -12,7 +12,7 @@ from geometry import (
     SHELF_IMAGE_SIZE,
     CalibrationError,
     Camera,
-    camera_center,
+    camera_centre,
     depth,
     load_4dassociation_calibration,
     load_projection_matrices,
@@ -113,7 +113,7 @@ def test_voxelpose_units_and_distortion_order(tmp_path):
     entry = voxelpose_entry(k=(-0.25, 0.08, 0.01), p=(2e-3, -1e-3))
     write_json(tmp_path / "cal.json", {"0": entry, "1": voxelpose_entry()})
     rig = load_voxelpose_calibration(tmp_path / "cal.json", image_size=(1000, 760))
-    assert_allclose(camera_center(rig)[0], [0.1, -2.0, 1.5], atol=1e-12)
+    assert_allclose(camera_centre(rig)[0], [0.1, -2.0, 1.5], atol=1e-12)
     assert_allclose(rig.dist[0], [-0.25, 0.08, 2e-3, -1e-3, 0.01])
     rng = np.random.default_rng(0)
     points_m = np.array([0.1, -2.0, 1.5]) + (np.asarray(rig.R[0]).T @ np.array([0.0, 0.0, 3.0])) \

@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose
 
 from geometry import (
     Camera,
-    camera_center,
+    camera_centre,
     camera_from_projection,
     depth,
     look_at,
@@ -122,22 +122,22 @@ def test_camera_frame_and_depth():
     assert_allclose(jax.vmap(to_camera_frame, in_axes=(None, 0))(camera, points), expected, rtol=1e-12)
     assert_allclose(depth(camera, points.reshape(2, 3, 3)), expected[:, 2].reshape(2, 3), rtol=1e-12)
     assert_allclose(point_depth(camera, points[0]), expected[0, 2], rtol=1e-12)
-    behind = np.asarray(camera_center(camera)) - 2.0 * np.asarray(camera.R[2])
+    behind = np.asarray(camera_centre(camera)) - 2.0 * np.asarray(camera.R[2])
     assert float(point_depth(camera, behind)) == pytest.approx(-2.0)
 
 
-def test_camera_center_and_projection_matrix():
+def test_camera_centre_and_projection_matrix():
     rng = np.random.default_rng(4)
     camera = random_camera(rng, skew=1.5, dist=np.zeros(5))
-    center = np.asarray(camera_center(camera))
-    assert_allclose(np.asarray(camera.R) @ center + np.asarray(camera.t), 0.0, atol=1e-12)
+    centre = np.asarray(camera_centre(camera))
+    assert_allclose(np.asarray(camera.R) @ centre + np.asarray(camera.t), 0.0, atol=1e-12)
     P = np.asarray(projection_matrix(camera))
     points = points_in_front(rng, camera, 20)
     homogeneous = np.concatenate([points, np.ones((20, 1))], axis=-1) @ P.T
     assert_allclose(project(camera, points), homogeneous[:, :2] / homogeneous[:, 2:], atol=1e-9)
     rig = jax.tree.map(lambda *leaves: jnp.stack(leaves), camera, random_camera(rng))
     assert projection_matrix(rig).shape == (2, 3, 4)
-    assert_allclose(camera_center(rig)[0], center, rtol=1e-12)
+    assert_allclose(camera_centre(rig)[0], centre, rtol=1e-12)
 
 
 @few

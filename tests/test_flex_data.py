@@ -29,7 +29,7 @@ def dynamic_batch():
 
 
 def _camera_centres(batch) -> np.ndarray:
-    return np.asarray(geometry.camera_center(batch.cameras))  # (B, K, T, 3)
+    return np.asarray(geometry.camera_centre(batch.cameras))  # (B, K, T, 3)
 
 
 def test_sampling_is_deterministic_from_the_key(static_batch):

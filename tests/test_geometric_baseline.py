@@ -25,7 +25,7 @@ def _scores(result, body25_gt, people):
 
 
 def test_perfect_detector_recovers_ground_truth():
-    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
+    scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
                                    detector=mocap.PERFECT_DETECTOR)
     result = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
     score = _scores(result, scene.body25, 2)
@@ -46,7 +46,7 @@ def test_perfect_detector_recovers_ground_truth():
 
 
 def test_realistic_detector_sensible():
-    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
+    scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
     result = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), CONFIG)
     score = _scores(result, scene.body25, 2)
     assert score.average["pcp"] > 70.0
@@ -152,7 +152,7 @@ def test_reprojection_check_adds_views_and_rejects_far_detections():
 
 
 def test_short_tracks_dropped_and_gaps_bridged():
-    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
+    scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES,
                                    detector=mocap.PERFECT_DETECTOR)
     # Person 1 vanishes from every view in frames 3-4: its track has a two-frame gap.
     detections = [[d if f not in (3, 4) else mocap.Detections(
@@ -175,7 +175,7 @@ def test_short_tracks_dropped_and_gaps_bridged():
 def test_predictions_ranked_by_support_and_duplicates_suppressed():
     """Rows are scored by the Joint Cloud candidates of their track's cluster and ranked by it within each
     frame; a suppression distance larger than the scene keeps only each frame's best-supported person."""
-    scene = mocap.synthesize_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
+    scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
     ranked = association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES),
                                           dataclasses.replace(CONFIG, duplicate_distance=0.0))
     rows = ranked.predictions
@@ -233,7 +233,7 @@ def _noisy_track(seed, frames=12):
     """One person of a synthetic scene seen by the Shelf cameras, its detections with pixel noise, and
     their DLT triangulation (the raw baseline joints)."""
     rig = mocap.shelf_cameras()
-    scene = mocap.synthesize_scene(jax.random.key(seed), rig, num_people=1, num_frames=frames,
+    scene = mocap.synthesise_scene(jax.random.key(seed), rig, num_people=1, num_frames=frames,
                                    detector=mocap.PERFECT_DETECTOR)
     truth = np.asarray(scene.body25[:, 0])  # (F, 25, 3)
     views = rig.num_views

@@ -22,7 +22,7 @@ TINY = jcsat.JCSATConfig(
 @pytest.fixture(scope="module")
 def baseline():
     # synthetic_validation's scene of seed 3 with its default BaselineConfig: they share one compilation.
-    scene = mocap.synthesize_scene(jax.random.key(3), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
+    scene = mocap.synthesise_scene(jax.random.key(3), mocap.shelf_cameras(), num_people=2, num_frames=FRAMES)
     config = association.BaselineConfig()
     return association.run_geometric_baseline(scene.rig, scene.detections, np.arange(FRAMES), config)
 

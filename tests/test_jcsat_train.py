@@ -18,7 +18,7 @@ import mocap
 from geometry import SHELF15
 from jcsat import (
     CONFIGS, JCSAT, TRAIN_CONFIGS, VALIDATION_CLIPS, Batch, DataConfig, JCSATConfig, TrainConfig, bone_losses,
-    build_dataset, init_state, jcsat_loss, learning_rate_schedule, load_model, make_optimizer, pcp_hinge_loss,
+    build_dataset, init_state, jcsat_loss, learning_rate_schedule, load_model, make_optimiser, pcp_hinge_loss,
     project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step, window_batch,
 )
 import training
@@ -43,7 +43,7 @@ def cache_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def scene() -> mocap.Scene:
-    return mocap.synthesize_scene(jax.random.key(TRAIN_DATA.first_seed), mocap.shelf_cameras(),
+    return mocap.synthesise_scene(jax.random.key(TRAIN_DATA.first_seed), mocap.shelf_cameras(),
                                   num_people=TRAIN_DATA.num_people, num_frames=TRAIN_DATA.num_frames,
                                   clips=[mocap.load_clip(c) for c in TRAIN_DATA.clips])
 
@@ -230,10 +230,10 @@ def _fixed_batch_steps(config: TrainConfig, dataset, num_steps: int):
     replicated, sharded = training.data_parallel_shardings(config.batch_size)
     state = jax.device_put(init_state(config, params, rest), replicated)
     batch = jax.device_put(sample_batch(dataset, jax.random.key(1), config.batch_size, config.data.window), sharded)
-    optimizer, schedule = make_optimizer(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
+    optimiser, schedule = make_optimiser(config.weight_decay, config.grad_clip), learning_rate_schedule(config)
     losses = []
     for i in range(num_steps):
-        state, metrics = train_step(graphdef, config.losses, optimizer, replicated, state, batch, jax.random.key(i),
+        state, metrics = train_step(graphdef, config.losses, optimiser, replicated, state, batch, jax.random.key(i),
                                     schedule(i))
         losses.append(float(metrics["loss"]))
     return state, losses
@@ -251,7 +251,7 @@ def test_parallel_scene_build_matches_one_process(dataset):
 
 
 def test_steps_reduce_loss_on_a_fixed_batch(dataset, cache_dir):
-    # The model, losses and optimizer settings of the runs below: the step compiled here is reused by them (the
+    # The model, losses and optimiser settings of the runs below: the step compiled here is reused by them (the
     # zero-rate run of test_init_model_starts_the_run too: rates are arguments).
     state, losses = _fixed_batch_steps(_config(cache_dir=str(cache_dir)), dataset, 12)
     assert all(np.isfinite(losses)) and losses[-1] < 0.7 * losses[0], losses

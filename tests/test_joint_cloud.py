@@ -177,7 +177,7 @@ def test_windows_and_people_count():
 
 
 def test_model_tensor_layout():
-    scene = mocap.synthesize_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
+    scene = mocap.synthesise_scene(jax.random.key(1), mocap.shelf_cameras(), num_people=2, num_frames=4,
                                    detector=mocap.PERFECT_DETECTOR)
     people = association.track_people(scene.rig, mocap.pad_detections(scene.detections, 6), jax.random.key(0))
     assert set(people.seconds) == {"joint_cloud", "clustering", "tracking", "model_tensor"}

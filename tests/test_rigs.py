@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from geometry import (
     Camera,
-    camera_center,
+    camera_centre,
     perturb_extrinsics_bounded,
     perturb_extrinsics_relative,
     point_depth,
@@ -39,7 +39,7 @@ def test_ring_rig_geometry(pattern):
     rig = ring_rig(5, pattern=pattern, start_angle=0.4, **SHELF_LIKE)
     assert rig.num_views == 5
     target = np.array(SHELF_LIKE["target"])
-    centres = np.asarray(camera_center(rig))
+    centres = np.asarray(camera_centre(rig))
     offsets = centres[:, :2] - target[:2]
     assert_allclose(np.linalg.norm(offsets, axis=-1), 3.5, rtol=1e-12)
     assert_allclose(centres[:, 2], 2.2, rtol=1e-12)
@@ -60,7 +60,7 @@ def test_ring_rig_half_covers_half_circle():
     half, round_ = ring_rig(6, pattern="half", **SHELF_LIKE), ring_rig(6, pattern="round", **SHELF_LIKE)
     target = np.array(SHELF_LIKE["target"])
     for rig, extent in ((half, np.pi * 5 / 6), (round_, 2 * np.pi * 5 / 6)):
-        d = np.asarray(camera_center(rig))[:, :2] - target[:2]
+        d = np.asarray(camera_centre(rig))[:, :2] - target[:2]
         azimuths = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
         assert azimuths[-1] - azimuths[0] == pytest.approx(extent)
 
@@ -92,15 +92,15 @@ def test_structri_rig_matches_official_code(pattern, span):
     for view, P in enumerate(reference_structri_projections(7, span)):
         homogeneous = np.concatenate([points_m * 1000.0, np.ones((20, 1))], axis=-1) @ P.T
         assert_allclose(ours[view], homogeneous[:, :2] / homogeneous[:, 2:], atol=1e-9)
-    assert_allclose(np.linalg.norm(np.asarray(camera_center(rig)), axis=-1), 2.0, rtol=1e-12)
+    assert_allclose(np.linalg.norm(np.asarray(camera_centre(rig)), axis=-1), 2.0, rtol=1e-12)
     # Literal R_y: a vertical ring for z-up data, the ring's axis is world y.
-    assert_allclose(np.asarray(camera_center(rig))[:, 1], 0.0, atol=1e-12)
-    assert_allclose(camera_center(rig)[0], [0.0, 0.0, -2.0], atol=1e-12)
+    assert_allclose(np.asarray(camera_centre(rig))[:, 1], 0.0, atol=1e-12)
+    assert_allclose(camera_centre(rig)[0], [0.0, 0.0, -2.0], atol=1e-12)
 
 
 def test_structri_rig_z_up_is_horizontal_and_upright():
     rig = structri_virtual_rig(6, "round", up_axis="z")
-    centres = np.asarray(camera_center(rig))
+    centres = np.asarray(camera_centre(rig))
     assert_allclose(centres[:, 2], 0.0, atol=1e-12)
     assert_allclose(np.linalg.norm(centres, axis=-1), 2.0, rtol=1e-12)
     assert_allclose(centres[0], [0.0, -2.0, 0.0], atol=1e-12)
@@ -151,7 +151,7 @@ def test_relative_perturbation_statistics():
 def test_bounded_perturbation_within_bounds_and_spread():
     rig = ring_rig(4, **SHELF_LIKE)
     perturbed = perturb_extrinsics_bounded(jax.random.key(1), tiled(rig))
-    offsets = per_copy(camera_center(perturbed)) - np.asarray(camera_center(rig))
+    offsets = per_copy(camera_centre(perturbed)) - np.asarray(camera_centre(rig))
     assert np.abs(offsets).max() <= 0.0025 + 1e-12
     assert np.abs(offsets).max() > 0.0024  # the bound is reached, not just respected
     assert_allclose(offsets.reshape(-1, 3).std(axis=0), 0.0025 / np.sqrt(3), rtol=0.05)  # uniform

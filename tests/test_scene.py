@@ -14,12 +14,12 @@ HIP = BODY25.index("mid_hip")
 
 @pytest.fixture(scope="module")
 def scene():
-    return mocap.synthesize_scene(jax.random.key(7), RIG, num_people=4, num_frames=60)
+    return mocap.synthesise_scene(jax.random.key(7), RIG, num_people=4, num_frames=60)
 
 
 def test_same_key_same_scene_different_key_different(scene):
-    again = mocap.synthesize_scene(jax.random.key(7), RIG, num_people=4, num_frames=60)
-    other = mocap.synthesize_scene(jax.random.key(8), RIG, num_people=4, num_frames=60)
+    again = mocap.synthesise_scene(jax.random.key(7), RIG, num_people=4, num_frames=60)
+    other = mocap.synthesise_scene(jax.random.key(8), RIG, num_people=4, num_frames=60)
     assert np.array_equal(scene.body25, again.body25) and scene.placement.names == again.placement.names
     for f in (0, 59):
         for a, b in zip(scene.detections[f], again.detections[f]):
@@ -63,7 +63,7 @@ def test_no_collisions_and_inside_area(scene):
 
 def test_crowding_fails_loudly():
     with pytest.raises(ValueError, match="could not place"):
-        mocap.synthesize_scene(jax.random.key(0), RIG, num_people=4, num_frames=10, area=(0, 0, 0.5, 0.5),
+        mocap.synthesise_scene(jax.random.key(0), RIG, num_people=4, num_frames=10, area=(0, 0, 0.5, 0.5),
                                max_attempts=2)
 
 

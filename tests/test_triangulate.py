@@ -30,9 +30,9 @@ def ring_cameras(num_views: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray,
     for view in range(num_views):
         yaw = np.deg2rad(-50 + 100 * view / max(num_views - 1, 1))
         R = rotation([rng.normal(0, 0.05), yaw, rng.normal(0, 0.05)])
-        center = np.array([6 * np.sin(yaw), rng.normal(0, 0.3), 6 - 6 * np.cos(yaw)])
+        centre = np.array([6 * np.sin(yaw), rng.normal(0, 0.3), 6 - 6 * np.cos(yaw)])
         rotations.append(R)
-        translations.append(-R @ center)
+        translations.append(-R @ centre)
     rotations, translations = np.stack(rotations), np.stack(translations)
     projections = K @ np.concatenate([rotations, translations[:, :, None]], axis=-1)
     return rotations, translations, projections
@@ -52,12 +52,12 @@ def scene(num_views: int, noise: float, seed: int = 0, num_points: int = N):
     return projections, points, pixels
 
 
-def numpy_dlt(projections: np.ndarray, pixels: np.ndarray, weights: np.ndarray, normalize_rows: bool = False) -> np.ndarray:
+def numpy_dlt(projections: np.ndarray, pixels: np.ndarray, weights: np.ndarray, normalise_rows: bool = False) -> np.ndarray:
     """Independent reference: weighted DLT with one np.linalg.svd per point."""
     out = []
     for observed, weight in zip(pixels.reshape(-1, *pixels.shape[-2:]), weights.reshape(-1, weights.shape[-1])):
         rows = observed[:, :, None] * projections[:, 2:3, :] - projections[:, :2, :]
-        if normalize_rows:
+        if normalise_rows:
             rows = rows / np.linalg.norm(rows, axis=-1, keepdims=True)
         v = np.linalg.svd((weight[:, None, None] * rows).reshape(-1, 4))[2][-1]
         out.append(v[:3] / v[3])
@@ -77,16 +77,16 @@ def test_two_views_match_opencv(method):
     np.testing.assert_allclose(result.point, opencv_two_view(projections, pixels), rtol=1e-9, atol=1e-9)
 
 
-@pytest.mark.parametrize("method, normalize_rows", [("closed_form", False), ("svd", False), ("closed_form", True)])
-def test_five_weighted_views_match_numpy_svd(method, normalize_rows):
+@pytest.mark.parametrize("method, normalise_rows", [("closed_form", False), ("svd", False), ("closed_form", True)])
+def test_five_weighted_views_match_numpy_svd(method, normalise_rows):
     projections, _, pixels = scene(5, noise=1.0, seed=1)
     weights = np.random.default_rng(2).uniform(0.2, 2.0, (N, 5))
-    result = triangulate(projections, pixels, weights, method=method, normalize_rows=normalize_rows)
-    expected = numpy_dlt(projections, pixels, weights, normalize_rows)
+    result = triangulate(projections, pixels, weights, method=method, normalise_rows=normalise_rows)
+    expected = numpy_dlt(projections, pixels, weights, normalise_rows)
     np.testing.assert_allclose(result.point, expected, rtol=1e-9, atol=1e-9)
     assert result.num_views.tolist() == [5] * N
     rows = pixels[..., None] * projections[:, 2:3, :] - projections[:, :2, :]
-    if normalize_rows:
+    if normalise_rows:
         rows = rows / np.linalg.norm(rows, axis=-1, keepdims=True)
     smallest_singular_value = np.linalg.svd((weights[:, :, None, None] * rows).reshape(N, -1, 4))[1][:, -1]
     np.testing.assert_allclose(result.residual, smallest_singular_value, rtol=1e-7)
@@ -170,8 +170,8 @@ def test_degenerate_geometry_is_invalid(method, dtype):
     eye = np.eye(3)
     target = np.array([0.3, -0.2, 5.0])
 
-    def camera(R, center):
-        return K @ np.hstack([R, (-R @ center)[:, None]])
+    def camera(R, centre):
+        return K @ np.hstack([R, (-R @ centre)[:, None]])
 
     # Same centre, different orientation: every point on the ray fits, the null space is 2-dimensional.
     same_center = np.stack([camera(eye, np.zeros(3)), camera(rotation([0, 0.3, 0]), np.zeros(3))])
@@ -359,8 +359,8 @@ def test_benchmark_smoke(capsys):
 # Bad input ("Trustworthy runs"): geometry that cannot have produced the observations is never `valid`.
 
 
-def _camera(R, center):
-    return K @ np.hstack([R, (-R @ np.asarray(center, float))[:, None]])
+def _camera(R, centre):
+    return K @ np.hstack([R, (-R @ np.asarray(centre, float))[:, None]])
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -4,7 +4,7 @@ Real data (``data_root`` holding ``shelf/``): the OpenPose detections of the sta
 300..600 (``quick``: the first 60), scored against actorsGT under the three matching protocols of
 ``shelf_protocol.md`` next to the 4D-association output (``shelf/4d_association/skel.txt``) scored by
 the same evaluator. Without data: a seeded synthetic scene with the Shelf rig and the realistic
-detector (:func:`mocap.synthesize_scene`), scored against its own ground truth, labelled synthetic.
+detector (:func:`mocap.synthesise_scene`), scored against its own ground truth, labelled synthetic.
 
 Method ``jcsat`` runs the geometric pipeline first (its tracks are the persons of Algorithm 1) and
 then the model on each track's windows (:func:`~jcsat.predict_shelf15`, ``aggregate``); both are scored, so
@@ -195,7 +195,7 @@ def _load_data(config: ShelfExperimentConfig) -> _ShelfData:
     if synthetic:
         people = 3 if config.quick else config.synthetic_people
         frames = 40 if config.quick else config.synthetic_frames
-        scene = mocap.synthesize_scene(jax.random.key(config.seed), mocap.shelf_cameras(), num_people=people,
+        scene = mocap.synthesise_scene(jax.random.key(config.seed), mocap.shelf_cameras(), num_people=people,
                                        num_frames=frames)
         rig, detections, frame_indices = scene.rig, scene.detections, np.arange(frames)
         ground_truth = mocap.EvaluationGroundTruth(frame_indices, np.swapaxes(scene.shelf15, 0, 1),
@@ -280,7 +280,7 @@ def _score(config: ShelfExperimentConfig, data: _ShelfData, predictions: dict[st
 
 def _title(config: ShelfExperimentConfig, data: _ShelfData, averaged: tuple[int, ...]) -> str:
     """The two lines above the score table: the method and setting, the data and the averaged actors."""
-    kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesize_scene), NOT the real Shelf data" if data.synthetic
+    kind = ("SYNTHETIC Shelf-rig scene (mocap.synthesise_scene), NOT the real Shelf data" if data.synthetic
             else f"real Shelf, actorsGT frames {data.frame_indices[0]}..{data.frame_indices[-1]}")
     views = data.views
     setting = f"views {list(views)}" + (f", perturbed cameras {list(views[:config.perturb_cameras])}"
@@ -373,14 +373,14 @@ def synthetic_validation(
 ) -> dict[str, dict[str, float]]:
     """Score baseline settings on SYNTHETIC Shelf-rig validation scenes (never on the Shelf test frames).
 
-    One scene per seed (:func:`mocap.synthesize_scene` with :func:`mocap.shelf_cameras`, the
+    One scene per seed (:func:`mocap.synthesise_scene` with :func:`mocap.shelf_cameras`, the
     realistic detector); every setting runs on every scene. Returns per setting the PCP (%,
     ``protocol``, averaged over all people) of each seed (``"seed <s>"``), their mean (``"pcp"``)
     and the mean number of tracks (``"tracks"``). The seeds differ from the main job's default (0).
     With ``model``, rows ``"jcsat, ..."`` score it on the default :class:`BaselineConfig`'s tracks with
     each of :data:`~jcsat.AGGREGATES` (``"mean"`` with window strides 1, 2 and 3).
     """
-    scenes = [mocap.synthesize_scene(jax.random.key(seed), mocap.shelf_cameras(), num_people=people,
+    scenes = [mocap.synthesise_scene(jax.random.key(seed), mocap.shelf_cameras(), num_people=people,
                                      num_frames=frames) for seed in seeds]
     rows: dict[str, list[tuple[float, int]]] = {}
     for scene in scenes:
