@@ -98,6 +98,7 @@ def experiment_config(config: Config, model: Path | str | None) -> jcsat_study.S
 
 
 def main(config: Config) -> None:
+    jcsat_study.check_input_files(experiment_config(config, None if config.train else config.model))  # before training
     experiment = experiment_config(config, _train(config) if config.train else config.model)
     with _cli.run_folder(config.out, keep=("train",)) as out:
         log_path = out / "log.jsonl"
