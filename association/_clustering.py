@@ -52,7 +52,7 @@ _RADIUS_BY_NAME = {
 }
 BODY25_JOINT_RADIUS: tuple[float, ...] = tuple(_RADIUS_BY_NAME[name] for name in BODY25.joints)
 """Metres, BODY25 order: a candidate joins a person if closer than this to the person's centre
-(official JCSAT code, ``jcsat_reference.md`` section 3; the asymmetric elbows are the code's)."""
+(official JCSAT code, ``docs/jcsat.md``, "Where the paper is silent"; the asymmetric elbows are the code's)."""
 
 _MID_HIP = BODY25.index("mid_hip")
 

@@ -75,19 +75,17 @@ class GeometricConfig:
     structural_steps: int = 9
     """Step Constraint Algorithm steps of the Structural Triangulation refinement with each track's bone
     lengths (:func:`structural_refinement`); 0 skips it. Chosen with ``structural_prior_weight`` on synthetic
-    Shelf-rig validation scenes (``python -m experiments.shelf_validate``, VoxelPose protocol, 2026-11-23):
-    PCP 93.02 against 92.79 without the refinement (3 / 6 / 12 steps: 92.95 / 92.98 / 92.94)."""
+    Shelf-rig validation scenes (``python -m experiments.shelf_validate``, VoxelPose protocol; the scores:
+    ``docs/jcsat.md``, "How the settings were chosen")."""
     structural_prior_weight: float = 0.01
     """Weight of a joint's current estimate, projected into the views that have no detection of it, in that
-    refinement (detections weigh their score, 0.2-1). Same validation: 0.003 / 0.05 / 0.3 scored 92.94 /
-    93.00 / 92.69."""
+    refinement (detections weigh their score, 0.2-1). Chosen by the same validation."""
     max_bone_deviation: float = 0.5
     """Relative deviation of a bone from the track's length (:func:`track_bone_lengths`) beyond which the
     refinement distrusts a joint all of whose bones deviate (:func:`bone_outliers`): its detections are
     dropped and it is solved from its bones and its nearest trusted estimate in time; 0 trusts every joint.
-    Chosen on synthetic Shelf-rig validation scenes (``python -m experiments.shelf_validate``, VoxelPose protocol,
-    2026-11-24): with the 3-frame median filter of that day, PCP 93.80 against 93.00 without (0.25 / 1: 93.78 /
-    93.51); with the 2-frame, 0.05 m filter then chosen, 94.18 (0.25 / 1: 93.91 / 93.32)."""
+    Chosen on synthetic Shelf-rig validation scenes (``python -m experiments.shelf_validate``, VoxelPose protocol;
+    the scores: ``docs/jcsat.md``, "How the settings were chosen")."""
 
     def __post_init__(self) -> None:
         if self.consensus_radius <= 0:

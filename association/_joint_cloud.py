@@ -18,7 +18,7 @@ yields a (usually filtered, sometimes not) spurious candidate, as in the paper.
 the step, and writes the dense grid; :func:`joint_cloud_frame` computes every entry of one frame.
 Both give the same numbers.
 
-The filters are those of the official code (``jcsat_reference.md`` section 3): both detection
+The filters are those of the official code (``docs/jcsat.md``, "Where the paper is silent"): both detection
 scores above ``min_score`` and the two rays closer than ``max_ray_distance`` metres; in addition the
 point must be in front of both cameras and the two-view DLT well posed (:func:`geometry.triangulate_point`).
 The official code triangulates with a two-view Gauss-Newton; this module uses the two-view DLT of

@@ -53,11 +53,9 @@ class BaselineConfig:
     (:func:`~association.fill_missing`). A person whose MidHip goes undetected for a moment keeps a pose."""
     outlier_half_window: int = 2
     """Frames on either side of the temporal median of :func:`~association.reject_temporal_outliers`
-    (0: no outlier rejection). Chosen on a 3 x 5 grid of synthetic Shelf-rig validation scenes
-    (``python -m experiments.shelf_validate``). With the bone-outlier rejection of the structural refinement
-    (2026-11-24) 2 frames and 0.05 m were best: PCP 94.18 against 90.83 without the filter and 93.80 for the
-    plain median filter of 3 frames that was chosen before that rejection existed (2026-11-23: 93.02, against
-    93.05 for 3 frames and 0.05 m)."""
+    (0: no outlier rejection). Chosen with ``outlier_distance`` on a 3 x 5 grid of synthetic Shelf-rig
+    validation scenes (``python -m experiments.shelf_validate``; the grid and its scores: ``docs/jcsat.md``,
+    "How the settings were chosen")."""
     outlier_distance: float = 0.05
     """Metres from that median beyond which a joint is replaced by it (0: every joint is)."""
     duplicate_distance: float = 0.2
@@ -65,9 +63,9 @@ class BaselineConfig:
     Cloud candidates the track's cluster holds in the frame). A surplus K-Means centre beside a person
     gathers that person's candidates too and becomes a second skeleton of them; ranking puts the
     better-supported one first, which is the one the JCSAT protocol scores, and this distance drops the
-    other (0: ranking only). On the synthetic validation scenes (``python -m experiments.shelf_validate
-    --protocol jcsat``, 2026-11-23, with the structural refinement) 0 to 0.3 m score alike (PCP 92.61), 0.4 m
-    92.10 and 0.5 m 89.57 (real people dropped); 0.2 m, below any two people's mean joint distance, also drops near-copies (there are some on Shelf)."""
+    other (0: ranking only).
+    0.2 m, below any two people's mean joint distance, also drops near-copies; chosen by ``python -m
+    experiments.shelf_validate --protocol jcsat`` (``docs/jcsat.md``)."""
     max_candidates: int | None = None
     """Pad every view and joint type to this many 2D candidates (default: the largest count). A fixed
     size lets runs of different scenes share one compilation."""

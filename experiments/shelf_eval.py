@@ -1,6 +1,6 @@
 """Score a Shelf prediction file (``mocap`` JSON-lines format) against the Shelf ground truth.
 
-Prints, per matching protocol (``shelf_protocol.md`` section 5), the per-actor PCP with part counts and
+Prints, per matching protocol (``docs/protocols.md``), the per-actor PCP with part counts and
 VoxelPose bone groups, joint precision / recall at 0.2 m, MPJPE and Recall@500mm, averaged over actors 1-3,
 on the Shelf test frames (actorsGT 300..600). The 4D-association output converted with
 ``mocap.predictions_from_4dassoc`` gives A1-A3 PCP 99.7 / 91.4 / 97.7 (avg 96.27) under every protocol.

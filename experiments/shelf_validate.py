@@ -7,7 +7,7 @@ VoxelPose protocol, the duplicate suppression distance, chosen under the JCSAT p
 where a second prediction of a person costs anything), and the Structural Triangulation refinement's steps,
 prior weight and bone-outlier ratio (:class:`association.GeometricConfig`), chosen under the VoxelPose protocol.
 The defaults of :class:`association.BaselineConfig` are the best rows of these tables, or the simpler of tied rows
-(their docstrings give the figures). About 6 minutes on 2 CPU cores (2026-11-24, without ``--jcsat``).
+(their docstrings give the figures). About 6 minutes on 2 CPU cores without ``--jcsat``.
 ``--jcsat`` adds the shipped model with each way of turning its windows into poses (:data:`jcsat.AGGREGATES`);
 the main job's default (``jcsat_study.ShelfExperimentConfig.aggregate``) is the better of those rows.
 """

@@ -2,7 +2,7 @@
 
 Real data (``data_root`` holding ``shelf/``): the OpenPose detections of the standard test frames
 300..600 (``quick``: the first 60), scored against actorsGT under the three matching protocols of
-``shelf_protocol.md`` next to the 4D-association output (``shelf/4d_association/skel.txt``) scored by
+``docs/protocols.md`` next to the 4D-association output (``shelf/4d_association/skel.txt``) scored by
 the same evaluator. Without data: a seeded synthetic scene with the Shelf rig and the realistic
 detector (:func:`mocap.synthesise_scene`), scored against its own ground truth, labelled synthetic.
 
@@ -81,9 +81,9 @@ class ShelfExperimentConfig:
     windows containing the frame), the better on synthetic validation (``python -m experiments.shelf_validate
     --jcsat``), or ``"last"`` (causal, online)."""
     window_stride: int = 3
-    """``"mean"``'s window grid (:func:`~jcsat.predict_shelf15`'s ``stride``): strides 1, 2 and 3 score 96.80,
-    96.70 and 96.71 % on synthetic validation (``shelf_validate --jcsat``, 2026-11-23), and 3 runs a third of
-    the windows, for the frame rate (``bench_jcsat``)."""
+    """``"mean"``'s window grid (:func:`~jcsat.predict_shelf15`'s ``stride``): strides 1, 2 and 3 score alike on
+    synthetic validation (``shelf_validate --jcsat``; ``docs/jcsat.md``), and 3 runs a third of the windows, for
+    the frame rate (``bench_jcsat``)."""
 
     def __post_init__(self) -> None:
         if self.window_stride < 1:

@@ -1,6 +1,6 @@
 """The virtual-camera experiment of Structural Triangulation (paper Sect. 4.1, Fig. 4 and Fig. 6).
 
-Protocol (``/work/shared/specs/structri_reference.md`` section 5): the official virtual rigs
+Protocol (``docs/structri.md``, "The protocol"): the official virtual rigs
 (:func:`geometry.structri_virtual_rig`, round and half rings, 2 m from the origin, f = 900 px,
 skew 0.5), exact projections plus ``sigma * N(0, 1)`` pixel noise, uniform weights ``1/C``, N = 3 SCA
 steps (the solver drops to one step on the degenerate two-camera round ring by itself). Poses are
