@@ -1,8 +1,7 @@
 """Guards against the jaxlib 0.10.2 CPU miscompilation of jitted broadcast-multiply-reduce code.
 
 jaxlib 0.10.2 routes some jitted reductions to its new YNNPACK fusion and returns wrong numbers,
-with no error, once the batch is larger than about 10k (jax-ml/jax#39103; notes in
-tests/test_jax_regression.py itself). The project disables that fusion with
+with no error, once the batch is larger than about 10k (jax-ml/jax#39103). The project disables that fusion with
 ``XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=``, set explicitly by ``geometry.disable_faulty_cpu_fusion()``
 (geometry/_jax_guard.py; tests/conftest.py calls it), refuses 0.10.2 without it at ``import geometry``, and excludes
 the version in pyproject.toml. These tests fail if a jax bump brings the bug back.
