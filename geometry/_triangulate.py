@@ -498,7 +498,7 @@ def triangulate(
         A :class:`Triangulation` whose leaves have the leading shape ``batch``.
 
     Raises:
-        ValueError: on wrong shapes or dtypes, an unknown method, negative weights, or NaN/inf in the
+        ValueError: on wrong shapes or dtypes, no cameras, an unknown method, negative weights, or NaN/inf in the
             projections, the weights or a positively weighted point (value checks are skipped when
             called on traced values inside ``jax.jit``; shape checks always run).
     """

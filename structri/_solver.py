@@ -67,7 +67,8 @@ class Status(enum.IntEnum):
     UNDERDETERMINED = 3
     """Some joint has fewer than two independent rays (zero confidences or parallel rays), so A is
     singular: the pose is regularised LS (a tiny Tikhonov term per joint); an unobserved joint lands at
-    the point of its ray nearest the world origin (the origin itself when no view sees it)."""
+    the point of its ray nearest the world origin (the origin itself when no view sees it, so a frame
+    whose confidences are all zero returns every joint at the origin, never NaN)."""
 
 
 class StructriResult(NamedTuple):
@@ -437,6 +438,8 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
     # Regularised LS: exact LS where D_i is well conditioned, finite where it is not.
     total = jnp.sum(D, axis=0)
     scale = (total[0, 0] + total[1, 1] + total[2, 2]) / (3.0 * D.shape[0])
+    # A frame no view sees (every weight zero) has D = 0: a unit regulariser keeps its LS pose at the origin.
+    scale = jnp.where(scale > 0, scale, 1.0)
     D_reg_inv, _ = _inverse_3x3(D + 1e-12 * scale[None, None, None] * jnp.eye(3, dtype=D.dtype)[None, :, :, None])
     ls_pose = _matvec3(jnp.where(underdetermined[None, None, None], D_reg_inv, D_inv), m)
     ls_bones = ls_pose[tree.child] - ls_pose[tree.parent]
@@ -500,6 +503,18 @@ def projection_matrices(
     return P
 
 
+def _check_values(name: str, values: Array, requirement: str, acceptable) -> None:
+    """A one-line ValueError naming the first value outside ``acceptable`` (concrete inputs only: under jit the
+    values are not known here, and the kernels stay free of checks)."""
+    if isinstance(values, jax.core.Tracer):
+        return
+    values = np.asarray(values)
+    bad = ~acceptable(values)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name} {requirement}: got {values[index]} at index {index}")
+
+
 def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
     tree = _tree(skeleton)
     points_2d = jnp.asarray(points_2d)
@@ -527,6 +542,8 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
         if weights.shape != points_2d.shape[:-1]:
             raise ValueError(f"confidences must have shape {points_2d.shape[:-1]} (like points_2d "
                              f"without the last axis), got {weights.shape}")
+    _check_values("confidences", weights, "must be finite and >= 0 (0 drops a view)", lambda w: np.isfinite(w) & (w >= 0))
+    _check_values("bone_lengths", lengths, "must be finite and > 0", lambda L: np.isfinite(L) & (L > 0))
     flat = int(np.prod(frames, dtype=int))
     args = (points_2d.reshape(flat, views, num_joints, 2),
             P.reshape((flat,) * (P.ndim > 3) + (views, 3, 4)),

@@ -368,10 +368,11 @@ def test_predictions_in_millimetres_are_reported():
         result = evaluate_shelf(millimetres, gt, "voxelpose", averaged_actors=(0, 1))
     assert result.average["pcp"] == 0.0 and re.search(message, result.problems[0])
     assert result.to_dict()["problems"] == list(result.problems)
-    # Unreconstructed (0, 0, 0) joints do not enter the bone lengths.
-    partly = metres.joints.copy()
-    partly[:, :6] = 0.0
-    assert prediction_problems(metres._replace(joints=partly), gt) == ()
+    # Unreconstructed (0, 0, 0) joints do not enter the bone lengths: a person 5 m from the origin with only the
+    # right leg reconstructed has two 0.45 m bones, not a dozen 5 m ones to the origin.
+    leg_only = predictions(*((f, at(5.0)) for f in range(10)))
+    leg_only.joints[:, 3:] = 0.0
+    assert prediction_problems(leg_only, gt) == ()
 
 
 def test_predictions_covering_few_frames_are_reported():

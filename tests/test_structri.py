@@ -349,3 +349,45 @@ def test_per_frame_projection_matrices(scene):
     for f in range(4):
         np.testing.assert_allclose(ours[f], np.asarray(structural_triangulation(points[f], per_frame[f], LENGTHS).pose),
                                    rtol=0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad input ("Trustworthy runs"): refused with a one-line error, or an answer its status describes.
+
+
+def test_frame_no_view_sees_is_at_the_origin_as_its_status_says(scene):
+    _, _, points, P = scene
+    conf = np.full(points.shape[:-1], 0.25)
+    conf[3] = 0.0  # frame 3: every confidence zero
+    for solve in (lambda c: structural_triangulation(points, P, LENGTHS, confidences=c),
+                  lambda c: ls_triangulation(points, P, confidences=c),
+                  lambda c: lem_triangulation(points, P, confidences=c)):
+        result, seen = solve(conf), solve(np.full(points.shape[:-1], 0.25))
+        assert int(result.status[3]) == Status.UNDERDETERMINED  # "the origin itself when no view sees it"
+        np.testing.assert_array_equal(np.asarray(result.pose[3]), 0.0)
+        np.testing.assert_array_equal(np.asarray(result.bones[3]), 0.0)
+        others = np.arange(FRAMES) != 3  # frames are independent: the others are untouched
+        np.testing.assert_array_equal(np.asarray(result.pose)[others], np.asarray(seen.pose)[others])
+
+
+@pytest.mark.parametrize("lengths, match", [
+    (np.where(np.arange(16) == 4, 0.0, LENGTHS), r"bone_lengths must be finite and > 0: got 0.0 at index \(4,\)"),
+    (-LENGTHS, r"bone_lengths must be finite and > 0: got -0\.45 at index \(0,\)"),
+    (np.where(np.arange(16) == 2, np.nan, LENGTHS), r"bone_lengths .* got nan at index \(2,\)"),
+])
+def test_bad_bone_lengths_are_refused(scene, lengths, match):
+    _, _, points, P = scene
+    with pytest.raises(ValueError, match=match):
+        structural_triangulation(points, P, lengths)
+    with pytest.raises(ValueError, match=match):
+        lagrangian_triangulation(points, P, lengths)
+
+
+def test_negative_confidences_are_refused(scene):
+    _, _, points, P = scene
+    conf = np.full(points.shape[:-1], 0.25)
+    conf[2, 1, 7] = -0.5
+    for solve in (structural_triangulation, lambda *a, confidences: ls_triangulation(a[0], a[1], confidences=confidences),
+                  lambda *a, confidences: lem_triangulation(a[0], a[1], confidences=confidences)):
+        with pytest.raises(ValueError, match=r"confidences must be finite and >= 0 .*got -0.5 at index \(2, 1, 7\)"):
+            solve(points, P, LENGTHS, confidences=conf)

@@ -3,6 +3,7 @@ tested with their models: tests/test_jcsat_train.py, tests/test_flex_train.py)."
 
 import dataclasses
 import json
+import os
 import re
 from typing import NamedTuple
 
@@ -143,12 +144,21 @@ def test_model_files_are_written_atomically(tmp_path, monkeypatch):
     training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2}, nnx.state(model))
     before = {name: (tmp_path / "m" / name).read_bytes() for name in ("config.json", "state.npz")}
 
-    def killed(*args, **kwargs):
-        raise KeyboardInterrupt  # a run killed while writing the arrays
+    savez = np.savez
+
+    def killed(file, **arrays):  # a run killed half-way through writing the arrays
+        savez(file, **arrays)
+        if isinstance(file, (str, os.PathLike)):  # a path (how the old, non-atomic save_model called it)
+            size = os.path.getsize(file)
+            os.truncate(file, size // 2)
+        else:
+            file.truncate(file.tell() // 2)
+        raise KeyboardInterrupt
 
     monkeypatch.setattr(np, "savez", killed)
     with pytest.raises(KeyboardInterrupt):
-        training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2}, nnx.state(nnx.Linear(3, 2, rngs=nnx.Rngs(2))))
+        training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2, "note": "second"},
+                            nnx.state(nnx.Linear(3, 2, rngs=nnx.Rngs(2))))
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["config.json", "state.npz"]  # no leftovers
     assert {name: (tmp_path / "m" / name).read_bytes() for name in before} == before
 
