@@ -169,10 +169,7 @@ def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str |
             variant += 1
     frames = Frames(*(np.concatenate(column) for column in zip(*rows)))
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_suffix(".partial.npz")
-        np.savez(temporary, **frames._asdict())
-        temporary.replace(path)  # atomic: a killed run never leaves half a cache
+        training.write_atomically(path, lambda file: np.savez(file, **frames._asdict()))
     return frames
 
 

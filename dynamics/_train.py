@@ -398,8 +398,5 @@ def cached_features(backbone: ResNetBackbone, frames: Frames, data: DataConfig, 
     if path.is_file():
         return np.load(path)
     features = compute_features(backbone, frames.crops, progress=progress)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_suffix(".partial.npy")
-    np.save(temporary, features)
-    temporary.replace(path)
+    training.write_atomically(path, lambda file: np.save(file, features))
     return features

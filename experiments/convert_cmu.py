@@ -12,6 +12,7 @@ import dataclasses
 from pathlib import Path
 
 import mocap
+import training
 from experiments import _cli
 
 
@@ -44,9 +45,8 @@ def main(config: Config) -> None:
         motions = mocap.read_clip_sources(data_root, name)
         clip = mocap.clip_from_motions(name, motions, config.fps, description,
                                        tuple("+".join(files) for files in people))
-        path, partial = config.out / f"{name}.npz", config.out / f".{name}.partial.npz"
-        mocap.save_clip(clip, partial)
-        partial.replace(path)
+        path = config.out / f"{name}.npz"
+        training.write_atomically(path, lambda file: mocap.save_clip(clip, file))
         print(f"{name}: {clip.num_people} person(s), {clip.num_frames} frames at {clip.fps:g} Hz, "
               f"{path.stat().st_size} bytes")
 

@@ -24,6 +24,7 @@ import numpy as np
 
 import geometry
 import mocap
+import training
 from experiments import _cli
 from geometry import BODY25, SHELF14, SHELF15
 
@@ -211,9 +212,7 @@ def main(config: Config) -> None:
         title = (f"Shelf, detection frame {config.frame} = actorsGT frame {g}: "
                  f"{len(truth)} annotated actors (OpenPose BODY25, limbs by best PAF)")
         figure = (mocap.shelf_cameras(root), frames[config.frame], truth, SHELF14, title)
-    partial = config.out.with_name(f".{config.out.name}.partial.png")
-    draw_frame(partial, *figure)
-    partial.replace(config.out)  # atomic: never half a PNG under the name asked for
+    training.write_atomically(config.out, lambda file: draw_frame(file, *figure))
     print(f"wrote {config.out}")
 
 

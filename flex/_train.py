@@ -158,10 +158,8 @@ def build_pool(config: DataConfig, count: int, first_seed: int, cache_dir: str |
                for seed in tqdm.trange(first_seed, first_seed + count, disable=not progress, desc="flex samples")]
     pool = jax.tree.map(lambda *leaves: np.stack(leaves).astype(np.float32), *samples)
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_suffix(".partial.npz")
-        np.savez(temporary, **{name: value for name, value in pool._asdict().items() if value is not None})
-        temporary.replace(path)  # atomic: a killed run never leaves half a pool
+        arrays = {name: value for name, value in pool._asdict().items() if value is not None}
+        training.write_atomically(path, lambda file: np.savez(file, **arrays))
     return pool
 
 

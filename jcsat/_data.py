@@ -23,7 +23,6 @@ import dataclasses
 import hashlib
 import json
 import multiprocessing
-import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
@@ -35,6 +34,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 import geometry
 import mocap
+import training
 from association import ClusterConfig, JointCloudConfig, track_people
 from geometry import BODY25
 
@@ -240,10 +240,7 @@ def build_dataset(config: DataConfig, cache_dir: str | Path | None = None, *, wo
             parts = list(pool.map(_seeded_scene_windows, *zip(*jobs)))
     dataset = _concatenate(parts)
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez_compressed(partial, **dataset._asdict())
-        os.replace(partial, path)
+        training.write_atomically(path, lambda file: np.savez_compressed(file, **dataset._asdict()))
     return dataset
 
 

@@ -12,6 +12,7 @@
 
 from importlib.metadata import version as _version
 
+from ._files import write_atomically as write_atomically
 from ._layers import dropout as dropout
 from ._loop import data_parallel_shardings as data_parallel_shardings
 from ._loop import run_training as run_training

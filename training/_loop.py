@@ -17,6 +17,7 @@ import orbax.checkpoint as ocp
 import tqdm
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._files import write_atomically
 from ._provenance import provenance
 
 __all__ = ["data_parallel_shardings", "run_training", "to_jsonable"]
@@ -141,9 +142,8 @@ def run_training(
         _truncate_log(log_path, 0 if latest is None else latest)
         config_path.write_text(config_json)
         started = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-        run_json = workdir / "run.json.partial"
-        run_json.write_text(json.dumps({**provenance(), "started": started}, indent=2) + "\n")
-        run_json.replace(workdir / "run.json")  # atomic: never half a record
+        record = (json.dumps({**provenance(), "started": started}, indent=2) + "\n").encode()
+        write_atomically(workdir / "run.json", lambda file: file.write(record))
         state = jax.device_put(state, replicated)
 
         first = int(state.step)

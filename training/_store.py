@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 import zlib
 from collections.abc import Callable
@@ -16,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from ._files import _write_temporary
 from ._loop import to_jsonable
 
 __all__ = ["load_model_state", "save_model"]
@@ -26,21 +26,6 @@ M = TypeVar("M", bound=nnx.Module)
 def _storable(state: Any) -> Any:
     """The state without RNG keys and counters (they only seed training-time randomness)."""
     return nnx.filter_state(state, nnx.Not(nnx.RngState))
-
-
-def _write_atomically(path: Path, write: Callable[[Any], None]) -> Path:
-    """``write(binary file)`` into a hidden temporary file next to ``path``, flushed to disk; returns its path
-    for :func:`os.replace` (removed if ``write`` fails)."""
-    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    try:
-        with os.fdopen(descriptor, "wb") as file:
-            write(file)
-            file.flush()
-            os.fsync(file.fileno())
-    except BaseException:
-        os.unlink(temporary)
-        raise
-    return Path(temporary)
 
 
 def save_model(path: str | Path, config: Any, state: Any) -> None:
@@ -55,8 +40,8 @@ def save_model(path: str | Path, config: Any, state: Any) -> None:
     arrays = {jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves}
     written = {}
     try:
-        written["config.json"] = _write_atomically(path / "config.json", lambda file: file.write(config_text))
-        written["state.npz"] = _write_atomically(path / "state.npz", lambda file: np.savez(file, **arrays))
+        written["config.json"] = _write_temporary(path / "config.json", lambda file: file.write(config_text))
+        written["state.npz"] = _write_temporary(path / "state.npz", lambda file: np.savez(file, **arrays))
     except BaseException:
         for temporary in written.values():
             temporary.unlink()
