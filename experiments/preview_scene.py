@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 import jax
 import numpy as np
@@ -57,7 +57,7 @@ def _person_limbs(det, a: int, b: int) -> list[tuple[int, int]]:
 
 
 def draw_frame(
-    out: str | os.PathLike,
+    out: str | os.PathLike | BinaryIO,
     rig,
     detections,
     truth: np.ndarray,
@@ -151,7 +151,7 @@ def draw_frame(
     ax.set_title("ground truth (z up) and cameras", fontsize=10)
     fig.suptitle(title, fontsize=12)
     fig.tight_layout()
-    fig.savefig(out)
+    fig.savefig(out, format="png")
 
 
 @dataclasses.dataclass(frozen=True)
