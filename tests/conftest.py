@@ -35,16 +35,32 @@ def pytest_addoption(parser):
     parser.addoption(
         "--data-root",
         default=os.environ.get("MVMOCAP_DATA_ROOT", str(REPO.parent / "shared" / "data")),
-        help="folder with shelf/, campus/ and cmu_mocap/ (tests that need it are skipped without it)",
+        help="folder with shelf/, campus/ and cmu_mocap/ (tests that need it are skipped without it; "
+             "with CI=true in the environment its absence fails the run)",
     )
+
+
+def _data_root(config) -> Path:
+    return Path(config.getoption("--data-root")).expanduser()
+
+
+def _missing_data(root: Path) -> str:
+    return f"real data not found at {root} (pass --data-root or set MVMOCAP_DATA_ROOT)"
+
+
+def pytest_configure(config):
+    # Under CI the real-data tests pin the headline results (tests/test_headline_results.py): skipping them
+    # because the data folder is missing would pass CI without checking them, so the whole run fails instead.
+    if os.environ.get("CI", "").lower() == "true" and not (_data_root(config) / "shelf").is_dir():
+        raise pytest.UsageError(f"CI=true and {_missing_data(_data_root(config))}")
 
 
 @pytest.fixture(scope="session")
 def data_root(request) -> Path:
-    """The real data folder; skips the test with the reason when it is absent."""
-    root = Path(request.config.getoption("--data-root")).expanduser()
+    """The real data folder; skips the test with the reason when it is absent (outside CI, see above)."""
+    root = _data_root(request.config)
     if not (root / "shelf").is_dir():
-        pytest.skip(f"real data not found at {root} (pass --data-root or set MVMOCAP_DATA_ROOT)")
+        pytest.skip(_missing_data(root))
     return root
 
 
