@@ -192,3 +192,27 @@ def test_flex_synthetic_quick_on_the_shipped_models(tmp_path):
                 for r in results["main"] if r["input_2d"] == "detected"}
     assert measured.keys() == FLEX_QUICK.keys()
     _assert_table(measured, FLEX_QUICK)
+
+
+# `python -m experiments.dynamics --quick --out OUT` on the shipped models (README "Dynamics", on test windows every
+# 15 frames): two-person samples, MPJPE then PA-MPJPE (mm) at future frames 1, 10, 20 and 30 per method.
+DYNAMICS_HORIZONS = (1, 10, 20, 30)
+DYNAMICS_QUICK = {
+    "PHD+T": (150.701, 161.171, 164.614, 164.230, 103.693, 108.259, 110.727, 107.633),
+    "JAT": (149.826, 165.944, 165.290, 170.269, 102.365, 108.694, 110.149, 106.789),
+    "JAT w/o bias": (149.648, 159.444, 157.807, 163.675, 102.441, 109.168, 110.030, 106.352),
+    "MPJAT": (149.706, 161.083, 160.640, 175.509, 102.534, 108.358, 110.716, 107.484),
+    "MPJAT w/o P": (150.883, 161.712, 159.059, 163.050, 102.544, 109.309, 109.441, 106.701),
+    "ZeroMotion": (150.950, 162.142, 165.572, 166.875, 103.785, 108.618, 111.263, 107.462),
+}
+
+
+def test_dynamics_quick_on_the_shipped_models(tmp_path):
+    _run("dynamics", "--quick", out=tmp_path)
+    summary = json.loads((tmp_path / "results.json").read_text())["summary"]
+    assert summary["two_person"]["samples"] == 50
+    two_person = summary["two_person"]["prediction"]
+    measured = {method: tuple(metrics[name][k - 1] for name in ("mpjpe", "pa_mpjpe") for k in DYNAMICS_HORIZONS)
+                for method, metrics in two_person.items()}
+    assert measured.keys() == DYNAMICS_QUICK.keys()
+    _assert_table(measured, DYNAMICS_QUICK)
