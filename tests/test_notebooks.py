@@ -1,4 +1,5 @@
-"""Every notebook in notebooks/ runs top to bottom (nbclient, .venv's python3 kernel, a few frames)."""
+"""Every notebook in notebooks/ runs top to bottom (nbclient, .venv's python3 kernel, a few frames) and shows at
+least one figure inline: a PNG in its outputs, which a matplotlib backend switched to Agg would never produce."""
 
 import os
 import sys
@@ -9,9 +10,21 @@ import pytest
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 
 
+def _outputs(notebook) -> list:
+    return [o for c in notebook.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+
+
+def _error_lines(outputs: list) -> list[str]:
+    return [f"{o.ename}: {o.evalue}" for o in outputs if o.output_type == "error"]
+
+
+def _images(outputs: list) -> list:
+    return [o for o in outputs if o.output_type in ("display_data", "execute_result") and "image/png" in o.get("data", {})]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_executes(path, monkeypatch):
+def test_notebook_executes_and_shows_a_figure(path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
@@ -23,5 +36,6 @@ def test_notebook_executes(path, monkeypatch):
     client = nbclient.NotebookClient(notebook, timeout=180, kernel_name="python3",
                                      resources={"metadata": {"path": str(path.parent)}})
     client.execute()
-    errors = [o for c in notebook.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
-    assert not errors
+    outputs = _outputs(notebook)
+    assert not _error_lines(outputs), _error_lines(outputs)
+    assert _images(outputs), f"{path.name} ran but displayed no figure (no image/png output)"
