@@ -24,11 +24,13 @@ def _images(outputs: list) -> list:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_executes_and_shows_a_figure(path, monkeypatch):
+def test_notebook_executes_and_shows_a_figure(path, monkeypatch, request):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
     monkeypatch.setenv("NOTEBOOK_FRAMES", "30")
+    if request.config.getoption("--data-root"):  # the notebooks find it with mocap.find_data_root
+        monkeypatch.setenv("MVMOCAP_DATA_ROOT", request.config.getoption("--data-root"))
     # The kernel must be this interpreter (the venv with the editable install) and see the repo.
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(path.parents[1]), os.environ.get("PYTHONPATH", "")]))
     monkeypatch.setenv("PATH", os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]))
