@@ -3,8 +3,8 @@ output JSON read back), so a collapse of a shipped model or of the baseline fail
 
 The pinned values are the ones these commands printed on the development machine on 2026-11-25 (2-core AMD
 EPYC VM, jax/jaxlib 0.10.1, numpy 2.4.6). On one machine and install the runs repeat exactly; across machines and
-installs the Shelf figures move through borderline K-Means and tracking decisions (README, "These numbers are
-sensitive to micrometre-level changes"), hence the tolerances below, each justified where it is set.
+installs the Shelf figures move through borderline K-Means and tracking decisions (docs/jcsat.md,
+"Reproducibility across machines"), hence the tolerances below, each justified where it is set.
 
 Only stable command-line flags are used (``--data-root``, ``--out``, ``--quick``), and only the output files are
 read: the experiment code behind the entry points may move without touching this file.
@@ -44,10 +44,10 @@ class Scores(NamedTuple):
     actor_mpjpe_mm: tuple[float, float, float]
 
 
-# `python -m experiments.shelf_jcsat --data-root DATA --out OUT` on 2026-11-25 (twice: identical). The README's
-# table, measured the same day on another install of the same machine type, differs by up to 0.06 in the averages
-# (model 97.03 / 96.58, baseline 96.88 / 96.61 against 97.00 / 96.64 and 96.82 / 96.46 here, VoxelPose / JCSAT
-# protocol) and 0.3 on one actor (actor 2, model, JCSAT protocol: 93.2 against 93.5, one part of its 370).
+# `python -m experiments.shelf_jcsat --data-root DATA --out OUT` on 2026-11-25 (twice: identical), the figures the
+# README quotes. Another install of the same machine type printed up to 0.06 different averages the same day (model
+# 97.03 / 96.58, baseline 96.88 / 96.61 against 97.00 / 96.64 and 96.82 / 96.46 here, VoxelPose / JCSAT protocol)
+# and 0.3 on one actor (actor 2, model, JCSAT protocol: 93.2 against 93.5, one part of its 370): docs/jcsat.md.
 SHELF = {
     "jcsat": {
         "voxelpose": Scores(pcp=97.0021, mpjpe_mm=58.2242, actor_pcp=(99.6416, 94.5946, 96.7702),
