@@ -145,7 +145,7 @@ def _shelf15_table(source: Skeleton, head_rule: str | None) -> _Shelf15Table:
             if source.name not in _DEFAULT_HEAD_RULE:
                 raise ValueError(
                     f"{source.name} has no default head rule; choose head_rule from {HEAD_RULES} "
-                    "(the method you compare against, docs/protocols.md, "Head and neck")")
+                    "(the method you compare against, docs/protocols.md, 'Head and neck')")
             head_rule = _DEFAULT_HEAD_RULE[source.name]
         if head_rule not in HEAD_RULES:
             raise ValueError(f"unknown head_rule {head_rule!r}; choose from {HEAD_RULES}")
