@@ -29,6 +29,8 @@ def run_folder(out: str | os.PathLike, keep: Sequence[str] = ()) -> Iterator[Pat
     kill (resumable training workdirs such as ``train``): they are moved into the new folder, not staged.
     """
     out = Path(out).absolute()
+    if out.exists() and not out.is_dir():  # replacing it would move the file aside after the run's work
+        raise ValueError(f"--out {out} is a file, not a folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     record = {**training.provenance(), "started": _now()}  # what starts the run, not what is there at its end
     staging = Path(f"{out.parent / ('.' + out.name)}.staging-{os.getpid()}")

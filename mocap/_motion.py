@@ -185,6 +185,8 @@ def build_motion(
     root = parents.index(-1)
     if not fps > 0:
         raise ValueError(f"{name}: frame rate must be positive, got {fps}")
+    if not (np.isfinite(metres_per_unit) and metres_per_unit > 0):  # a negative scale mirrors the motion
+        raise ValueError(f"{name}: metres_per_unit must be a finite number > 0, got {metres_per_unit}")
     local = np.array(local_rotations, dtype=np.float64)
     root_positions = np.asarray(root_positions, dtype=np.float64) * metres_per_unit
     if y_up:

@@ -170,3 +170,13 @@ def test_to_bvh_rejects_bad_input(tmp_path, change, errors, message):
     with pytest.raises(errors, match=message):
         flex.to_bvh(path, **arguments)
     assert not path.exists()
+
+
+@pytest.mark.parametrize("metres_per_unit", [-1.0, 0.0, float("nan")])
+def test_read_bvh_refuses_a_scale_that_is_not_positive(tmp_path, metres_per_unit):
+    path = tmp_path / "one.bvh"
+    path.write_text("HIERARCHY\nROOT hips\n{\n  OFFSET 0 0 0\n  CHANNELS 3 Xposition Yposition Zposition\n"
+                    "  End Site\n  {\n    OFFSET 0 1 0\n  }\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n1 2 3\n")
+    assert mocap.read_bvh(path, 0.5).fps == pytest.approx(10.0)  # the file itself is fine
+    with pytest.raises(ValueError, match="metres_per_unit must be a finite number > 0"):
+        mocap.read_bvh(path, metres_per_unit)

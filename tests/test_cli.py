@@ -150,6 +150,14 @@ def test_a_failed_run_leaves_the_previous_outputs_untouched(tmp_path):
     assert _folder(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
+def test_an_out_that_is_a_file_is_refused_before_the_run(tmp_path):
+    out = tmp_path / "notes.txt"
+    out.write_text("a file")
+    with pytest.raises(ValueError, match=r"--out .*notes.txt is a file, not a folder"), _cli.run_folder(out):
+        pytest.fail("the run started")
+    assert out.read_text() == "a file" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
 def test_a_run_replaces_the_outputs_as_a_whole_and_keeps_the_training_workdir(tmp_path):
     out = tmp_path / "run"
     with _cli.run_folder(out) as staging:
