@@ -34,15 +34,29 @@ C = TypeVar("C")
 DEBUG_HELP = "Every command also takes --debug: on an error, show the full traceback instead of one line."
 
 def _one_line(tyro_message: str) -> str:
-    """The first section of tyro's boxed error message, on one line."""
-    lines = []
+    """tyro's boxed error message on one line: each section of the box (its parts are separated by rules) in a few
+    words, the unrecognised options first, the missing ones by name only (their help is in ``--help``)."""
+    sections, current = [], []
     for line in tyro_message.splitlines():
         text = line.strip().strip("│╭╮╰╯").strip()
-        if lines and text and set(text) <= {"─"}:
-            break
-        if text and not line.lstrip().startswith(("╭", "╰")):
-            lines.append(text)
-    return " ".join(lines) or tyro_message.strip()
+        if line.lstrip().startswith(("╭", "╰")) or (text and set(text) <= {"─", "-"}):  # box or plain rules
+            if current:
+                sections.append(current)
+            current = []
+        elif text:
+            current.append(text)
+    sections.append(current)
+    said = []
+    for header, *rest in (section for section in sections if section):
+        if header.startswith("For full helptext"):
+            continue
+        if header.startswith("Unrecognized options"):  # "...:" alone, or with the one option on its line
+            said.insert(0, f"unrecognised option(s): {' '.join([header.partition(':')[2].strip(), *rest]).strip()}")
+        elif header.startswith("Missing from"):
+            said.append(f"missing required option(s): {' '.join(l.split()[0] for l in rest if l.startswith('-'))}")
+        else:
+            said.append(" ".join([header, *rest]))
+    return "; ".join(said) or tyro_message.strip()
 
 
 def _fail(prog: str, message: str) -> NoReturn:

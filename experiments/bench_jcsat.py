@@ -50,8 +50,9 @@ class Config:
         for name in ("frames", "medium_frames", "repeats"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        if not self.model.is_dir():
-            raise ValueError(f"--model {self.model} is not a folder")
+        missing = [name for name in ("config.json", "state.npz") if not (self.model / name).is_file()]
+        if missing:
+            raise ValueError(f"--model {self.model} is not a saved model folder (no {' or '.join(missing)})")
         mocap.find_data_root(self.data_root, "shelf")
 
 

@@ -46,6 +46,8 @@ class Config:
         for name in ("frames", "numpy_frames", "reference_frames", "views", "repeats"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if not self.sigma >= 0:
+            raise ValueError(f"--sigma must be >= 0 pixels, got {self.sigma}")
         if self.numpy_frames > self.frames or self.reference_frames >= self.frames:
             raise ValueError("--numpy-frames and --reference-frames must be fewer than --frames")
 

@@ -66,7 +66,7 @@ def test_shelf_jcsat_help_shows_the_nested_baseline_options(capsys):
     (["--model", "/nonexistent"], "--model /nonexistent is not a folder"),
     (["--data-root", "/nonexistent"], "data folder /nonexistent is not a folder"),
     (["--method", "nope"], "method must be one of"),
-    (["--bogus"], "Unrecognized options: --bogus"),
+    (["--bogus"], "unrecognised option(s): --bogus"),
     (["--steps", "x"], "--steps"),
 ])
 def test_a_bad_option_is_one_line_and_exit_2(argv, message, capsys):
@@ -89,7 +89,7 @@ def test_bool_options_are_flags_not_strings(capsys):
     for word in ("ture", "False"):
         with pytest.raises(SystemExit) as exit_info:
             parse("--recentre", word)
-        assert exit_info.value.code == 2 and f"Unrecognized options: {word}" in capsys.readouterr().err
+        assert exit_info.value.code == 2 and f"unrecognised option(s): {word}" in capsys.readouterr().err
 
 
 def test_quick_changes_only_the_options_left_at_their_default(capsys):
@@ -209,7 +209,7 @@ def test_find_data_root(tmp_path, monkeypatch):
 def test_entry_point_process_refuses_a_bad_option_in_one_line(tmp_path):
     result = _run("structri_virtual", "--out", str(tmp_path / "out"), "--recentre", "ture")
     assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr == ("python -m experiments.structri_virtual: error: Unrecognized options: ture "
+    assert result.stderr == ("python -m experiments.structri_virtual: error: unrecognised option(s): ture "
                              "(see --help)\n"), result.stderr
 
 

@@ -235,15 +235,16 @@ def _run_methods(config: ShelfExperimentConfig, data: _ShelfData, event: Callabl
                  progress: Callable[[str], None]) -> _MethodOutputs:
     """The geometric baseline, then (method ``jcsat``) the model on the baseline's tracks; the stage timings are
     added to the baseline's ``seconds``."""
+    # A broken model file fails here, before the baseline's half minute, not after it.
+    model = load_model(SHIPPED_MODEL if config.model is None else config.model) if config.method == "jcsat" else None
     progress("geometric")
     result = run_geometric_baseline(data.rig, data.detections, data.frame_indices, config.baseline)
     event("geometric", seconds={k: round(v, 3) for k, v in result.seconds.items()},
           tracks=int(result.present.shape[0]), predictions=int(result.predictions.num_predictions))
     compared = {"geometric": result.predictions}
     track_poses = None
-    if config.method == "jcsat":
+    if model is not None:
         progress("jcsat")
-        model = load_model(SHIPPED_MODEL if config.model is None else config.model)
         rows = result.predictions
         position = np.searchsorted(data.frame_indices, rows.frame)
         start = time.perf_counter()
