@@ -20,9 +20,11 @@ AMC files store no frame rate: CMU captured at 120 Hz.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
+from jaxtyping import Float
 
 from ._motion import Motion, build_motion, euler_matrices, malformed
 
@@ -102,121 +104,169 @@ def _lines(path: Path) -> list[str]:
         raise ValueError(f"{path}: cannot read ({e})") from None
 
 
+_ASF_SECTIONS = (":units", ":root", ":bonedata", ":hierarchy", ":documentation", ":version", ":name")
+"""Section keywords an ASF file may use; the parser reads the first four and skips the others' lines."""
+
+
+@dataclasses.dataclass
+class _BoneBlock:
+    """The fields of one ``begin`` ... ``end`` bone block read so far (``start`` is the ``begin`` line)."""
+
+    start: int
+    name: str | None = None
+    direction: Float[np.ndarray, "3"] | None = None
+    length: float | None = None
+    axis: tuple[Float[np.ndarray, "3"], str] | None = None  # angles in the file's unit, application order
+    dof: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass
+class _AsfParser:
+    """The skeleton read so far, with one method per section keyword; :meth:`finish` checks and completes it."""
+
+    asf: AsfSkeleton
+    bone: _BoneBlock | None = None  # the open bone block
+    root_axis_order: str = "XYZ"
+    root_orientation: Float[np.ndarray, "3"] = dataclasses.field(default_factory=lambda: np.zeros(3))
+    hierarchy_children: set[str] = dataclasses.field(default_factory=set)
+
+    @property
+    def path(self) -> Path:
+        return self.asf.path
+
+    def radians(self, angles: np.ndarray) -> np.ndarray:
+        """Angles in the unit of the ``:units angle`` line read so far, in radians."""
+        return np.deg2rad(angles) if self.asf.degrees else angles
+
+    def units(self, n: int, tokens: list[str]) -> None:
+        """A ``:units`` line: ``length`` and ``angle`` are used, others (``mass``) ignored."""
+        key = tokens[0]
+        if key == "length":
+            length = _floats(self.path, n, tokens[1:], 1, "units length")[0]
+            if length <= 0:
+                raise malformed(self.path, n, "units length must be positive")
+            self.asf.metres_per_unit = 0.0254 / length
+        elif key == "angle":
+            if len(tokens) != 2 or tokens[1].lower() not in ("deg", "rad"):
+                raise malformed(self.path, n, "units angle must be 'deg' or 'rad'")
+            self.asf.degrees = tokens[1].lower() == "deg"
+
+    def root(self, n: int, tokens: list[str]) -> None:
+        """A ``:root`` line: ``order``, ``axis`` and ``orientation`` are used, ``position`` only checked."""
+        key = tokens[0]
+        if key == "order":
+            order = tuple(t.upper() for t in tokens[1:])
+            if sorted(order) != sorted(("TX", "TY", "TZ", "RX", "RY", "RZ")):
+                raise malformed(self.path, n, f"root order must list TX TY TZ RX RY RZ once each, got {order}")
+            self.asf.root_order = order
+        elif key == "axis":
+            if len(tokens) != 2 or sorted(tokens[1].upper()) != ["X", "Y", "Z"]:
+                raise malformed(self.path, n, "root axis must be a permutation of XYZ")
+            self.root_axis_order = tokens[1].upper()
+        elif key == "orientation":
+            self.root_orientation = _floats(self.path, n, tokens[1:], 3, "root orientation")
+        elif key == "position":
+            _floats(self.path, n, tokens[1:], 3, "root position")
+
+    def bonedata(self, n: int, tokens: list[str]) -> None:
+        """A ``:bonedata`` line: ``begin``, ``end``, or a field of the open bone block (unknown fields such as
+        ``id`` and ``limits`` are ignored)."""
+        key = tokens[0]
+        if key == "begin":
+            self.bone = _BoneBlock(start=n)
+        elif key == "end":
+            self.end_bone(n)
+        elif self.bone is None:
+            raise malformed(self.path, n, f"{key!r} outside a bone 'begin' ... 'end' block")
+        elif key == "name":
+            if len(tokens) != 2:
+                raise malformed(self.path, n, "bone name must be one word")
+            self.bone.name = tokens[1]
+        elif key == "direction":
+            self.bone.direction = _floats(self.path, n, tokens[1:], 3, "direction")
+        elif key == "length":
+            self.bone.length = _floats(self.path, n, tokens[1:], 1, "length")[0]
+        elif key == "axis":
+            if len(tokens) != 5 or sorted(tokens[4].upper()) != ["X", "Y", "Z"]:
+                raise malformed(self.path, n, "axis needs three angles and an order such as XYZ")
+            self.bone.axis = (_floats(self.path, n, tokens[1:4], 3, "axis"), tokens[4].upper())
+        elif key == "dof":
+            dofs = tuple(t.lower() for t in tokens[1:])
+            bad = [d for d in dofs if d not in _AXIS_DOFS]
+            if bad or len(set(dofs)) != len(dofs):
+                raise malformed(self.path, n, f"unsupported or repeated dof {bad or dofs} (only rx ry rz)")
+            self.bone.dof = dofs
+
+    def end_bone(self, n: int) -> None:
+        """The ``end`` line ``n`` of a bone block: add the bone (its axis angles in the angle unit read so far)."""
+        bone = self.bone
+        if bone is None:
+            raise malformed(self.path, n, "'end' without 'begin'")
+        for field in ("name", "direction", "length", "axis"):
+            if getattr(bone, field) is None:
+                raise malformed(self.path, bone.start, f"bone block has no {field!r}")
+        name = bone.name
+        if name in self.asf.vector or name == "root":
+            raise malformed(self.path, bone.start, f"duplicate bone {name!r}")
+        norm = np.linalg.norm(bone.direction)
+        if norm == 0:
+            raise malformed(self.path, bone.start, f"bone {name!r} has a zero direction")
+        self.asf.bones.append(name)
+        self.asf.vector[name] = bone.length * bone.direction / norm
+        angles, axis_order = bone.axis
+        self.asf.axis[name] = _rotations([(self.radians(angles)[None], axis_order)])[0][0]
+        self.asf.dof[name] = bone.dof
+        self.bone = None
+
+    def hierarchy(self, n: int, tokens: list[str]) -> None:
+        """A ``:hierarchy`` line: ``parent child ...`` of bones already declared (``begin``/``end`` skipped)."""
+        parent = tokens[0]
+        if parent in ("begin", "end"):
+            return
+        if parent != "root" and parent not in self.asf.vector:
+            raise malformed(self.path, n, f"unknown bone {parent!r} in hierarchy")
+        for child in tokens[1:]:
+            if child not in self.asf.vector:
+                raise malformed(self.path, n, f"unknown bone {child!r} in hierarchy")
+            if child in self.hierarchy_children:
+                raise malformed(self.path, n, f"bone {child!r} has two parents")
+            self.hierarchy_children.add(child)
+            self.asf.parent[child] = parent
+
+    def finish(self, last_line: int) -> AsfSkeleton:
+        """At the end of the file (line ``last_line``): check that the skeleton is complete, add the root axis
+        (its orientation in the file's final angle unit)."""
+        if self.bone is not None:
+            raise malformed(self.path, last_line, "file ends inside a bone block")
+        if not self.asf.bones:
+            raise malformed(self.path, last_line, "no :bonedata bones")
+        orphans = [b for b in self.asf.bones if b not in self.asf.parent]
+        if orphans:
+            raise malformed(self.path, last_line, f"bones missing from :hierarchy: {orphans}")
+        self.asf.root_axis = _rotations([(self.radians(self.root_orientation)[None], self.root_axis_order)])[0][0]
+        self.asf.root_axis_order = self.root_axis_order
+        return self.asf
+
+
 def read_asf(path: str | Path) -> AsfSkeleton:
     """Parse an ASF skeleton; malformed input raises ``ValueError("<file>:<line>: ...")``."""
     path = Path(path)
     lines = _lines(path)
-    asf = AsfSkeleton(path)
-    section, bone, block_start = "", None, 0
-    hierarchy_seen = set()
-    raw_axis = {}
-
-    def to_radians(values):
-        return np.deg2rad(values) if asf.degrees else values
-
+    parser = _AsfParser(AsfSkeleton(path))
+    read_line = {":units": parser.units, ":root": parser.root, ":bonedata": parser.bonedata,
+                 ":hierarchy": parser.hierarchy}
+    section = ""
     for n, raw in enumerate(lines, 1):
         tokens = raw.split()
         if not tokens or tokens[0].startswith("#"):
             continue
-        key = tokens[0]
-        if key.startswith(":"):
-            section = key
-            if key in (":units", ":root", ":bonedata", ":hierarchy", ":documentation"):
-                continue
-            if key in (":version", ":name"):
-                continue
-            raise malformed(path, n, f"unknown ASF section {key!r}")
-        if section == ":units":
-            if key == "length":
-                length = _floats(path, n, tokens[1:], 1, "units length")[0]
-                if length <= 0:
-                    raise malformed(path, n, "units length must be positive")
-                asf.metres_per_unit = 0.0254 / length
-            elif key == "angle":
-                if len(tokens) != 2 or tokens[1].lower() not in ("deg", "rad"):
-                    raise malformed(path, n, "units angle must be 'deg' or 'rad'")
-                asf.degrees = tokens[1].lower() == "deg"
-        elif section == ":root":
-            if key == "order":
-                order = tuple(t.upper() for t in tokens[1:])
-                if sorted(order) != sorted(("TX", "TY", "TZ", "RX", "RY", "RZ")):
-                    raise malformed(path, n, f"root order must list TX TY TZ RX RY RZ once each, got {order}")
-                asf.root_order = order
-            elif key == "axis":
-                if len(tokens) != 2 or sorted(tokens[1].upper()) != ["X", "Y", "Z"]:
-                    raise malformed(path, n, "root axis must be a permutation of XYZ")
-                raw_axis["root"] = (n, tokens[1].upper())
-            elif key == "orientation":
-                raw_axis["root_orientation"] = (n, _floats(path, n, tokens[1:], 3, "root orientation"))
-            elif key == "position":
-                _floats(path, n, tokens[1:], 3, "root position")
-        elif section == ":bonedata":
-            if key == "begin":
-                bone, block_start = {"dof": ()}, n
-            elif key == "end":
-                if bone is None:
-                    raise malformed(path, n, "'end' without 'begin'")
-                for field in ("name", "direction", "length", "axis"):
-                    if field not in bone:
-                        raise malformed(path, block_start, f"bone block has no {field!r}")
-                name = bone["name"]
-                if name in asf.vector or name == "root":
-                    raise malformed(path, block_start, f"duplicate bone {name!r}")
-                direction = bone["direction"]
-                norm = np.linalg.norm(direction)
-                if norm == 0:
-                    raise malformed(path, block_start, f"bone {name!r} has a zero direction")
-                asf.bones.append(name)
-                asf.vector[name] = bone["length"] * direction / norm
-                angles, axis_order, axis_line = bone["axis"]
-                asf.axis[name] = _rotations([(to_radians(angles)[None], axis_order)])[0][0]
-                asf.dof[name] = bone["dof"]
-                bone = None
-            elif bone is None:
-                raise malformed(path, n, f"{key!r} outside a bone 'begin' ... 'end' block")
-            elif key == "name":
-                if len(tokens) != 2:
-                    raise malformed(path, n, "bone name must be one word")
-                bone["name"] = tokens[1]
-            elif key == "direction":
-                bone["direction"] = _floats(path, n, tokens[1:], 3, "direction")
-            elif key == "length":
-                bone["length"] = _floats(path, n, tokens[1:], 1, "length")[0]
-            elif key == "axis":
-                if len(tokens) != 5 or sorted(tokens[4].upper()) != ["X", "Y", "Z"]:
-                    raise malformed(path, n, "axis needs three angles and an order such as XYZ")
-                bone["axis"] = (_floats(path, n, tokens[1:4], 3, "axis"), tokens[4].upper(), n)
-            elif key == "dof":
-                dofs = tuple(t.lower() for t in tokens[1:])
-                bad = [d for d in dofs if d not in _AXIS_DOFS]
-                if bad or len(set(dofs)) != len(dofs):
-                    raise malformed(path, n, f"unsupported or repeated dof {bad or dofs} (only rx ry rz)")
-                bone["dof"] = dofs
-        elif section == ":hierarchy":
-            if key in ("begin", "end"):
-                continue
-            parent = key
-            if parent != "root" and parent not in asf.vector:
-                raise malformed(path, n, f"unknown bone {parent!r} in hierarchy")
-            for child in tokens[1:]:
-                if child not in asf.vector:
-                    raise malformed(path, n, f"unknown bone {child!r} in hierarchy")
-                if child in hierarchy_seen:
-                    raise malformed(path, n, f"bone {child!r} has two parents")
-                hierarchy_seen.add(child)
-                asf.parent[child] = parent
-    if bone is not None:
-        raise malformed(path, len(lines), "file ends inside a bone block")
-    if not asf.bones:
-        raise malformed(path, len(lines), "no :bonedata bones")
-    orphans = [b for b in asf.bones if b not in asf.parent]
-    if orphans:
-        raise malformed(path, len(lines), f"bones missing from :hierarchy: {orphans}")
-    root_axis = raw_axis.get("root", (0, "XYZ"))[1]
-    root_orientation = raw_axis.get("root_orientation", (0, np.zeros(3)))[1]
-    asf.root_axis = _rotations([(to_radians(root_orientation)[None], root_axis)])[0][0]
-    asf.root_axis_order = root_axis
-    return asf
+        if tokens[0].startswith(":"):
+            if tokens[0] not in _ASF_SECTIONS:
+                raise malformed(path, n, f"unknown ASF section {tokens[0]!r}")
+            section = tokens[0]
+        elif section in read_line:
+            read_line[section](n, tokens)
+    return parser.finish(len(lines))
 
 
 def read_amc(path: str | Path, asf: AsfSkeleton) -> tuple[np.ndarray, dict[str, np.ndarray]]:

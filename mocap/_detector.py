@@ -34,7 +34,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 import geometry
 from geometry import BODY25, Camera
@@ -56,6 +56,8 @@ __all__ = [
 
 _NUM_JOINTS = BODY25.num_joints
 _NUM_PAIRS = len(BODY25_PAF_PAIRS)
+_PAIR_A = np.array([a for a, _ in BODY25_PAF_PAIRS])  # the joint types each PAF pair links
+_PAIR_B = np.array([b for _, b in BODY25_PAF_PAIRS])
 _J = BODY25.index
 _FACE = ("nose", "r_eye", "l_eye", "r_ear", "l_ear")
 _OCCLUDED_DROP = tuple(
@@ -482,13 +484,51 @@ def detect_with_events(
 ) -> tuple[list[list[Detections]], DetectorEvents]:
     """:func:`detect` plus the :class:`DetectorEvents` (swaps, misses, visibility) behind the output."""
     geo = view_geometry(rig, joints, config)
-    rng = _numpy_rng(key)
-    n_f, n_v, n_p = geo.apparent_height.shape
-    n_g = len(SWAP_GROUPS)
+    rng = _numpy_rng(key)  # every step below draws from it in turn: the output is a pure function of the key
     height = geo.apparent_height
     image_size = np.asarray(rig.image_size, np.float64)[None, :, None, None, :]  # (1, V, 1, 1, 2)
+    # 0 at small_height and below, 1 from reference_height on: small people are missed more, with lower scores.
+    size = _ramp((height - config.small_height) / (config.reference_height - config.small_height))
+    labelled, swapped, swap_probability = _swap_left_right(rng, geo, config)
+    missed, miss_probability = _miss_people(rng, geo, size, config)
+    noisy, in_image = _noisy_positions(rng, labelled, height, image_size, config)
+    score, reported = _confidences(rng, labelled, noisy, in_image, missed, height, size, image_size, config)
+    true_paf = _true_pafs(rng, labelled.occlusion, config)
+    identity_swapped, identity_swap_probability = _identity_swaps(rng, noisy, reported, height, config)
+    spurious_xy, spurious_score, spurious_ok = _spurious_candidates(rng, geo, image_size, config)
+    paf = _paf_matrices(rng, true_paf, identity_swapped, config)
 
-    # Left/right swaps: label j reports the position (and visibility) of joint source[j].
+    # Candidate slots (F, V, 25, slots) of each joint type: people first, then spurious.
+    slot_xy = np.concatenate([noisy.transpose(0, 1, 3, 2, 4), spurious_xy], axis=3)
+    slot_score = np.concatenate([score.transpose(0, 1, 3, 2), spurious_score], axis=3)
+    slot_valid = np.concatenate([reported.transpose(0, 1, 3, 2), spurious_ok], axis=3)
+    slot_person = np.concatenate([np.arange(height.shape[2]), np.full(config.max_spurious_per_joint, -1)])
+    frames = _reported_candidates(image_size, slot_xy, slot_score, slot_valid, slot_person, paf)
+    events = DetectorEvents(
+        geo, reported, missed, miss_probability, swapped, swap_probability, identity_swapped,
+        identity_swap_probability, (spurious_ok.sum(-1)).astype(np.float64),
+    )
+    return frames, events
+
+
+class _Labelled(NamedTuple):
+    """The geometry behind each reported label: label j of a person shows joint j, or the mirrored joint when
+    its swap group was swapped."""
+
+    pixels: Float[np.ndarray, "frames views people 25 2"]
+    occlusion: Float[np.ndarray, "frames views people 25"]
+    self_occlusion: Float[np.ndarray, "frames views people 25"]
+    others_occlusion: Float[np.ndarray, "frames views people 25"]
+    in_front: Bool[np.ndarray, "frames views people 25"]
+
+
+def _swap_left_right(
+    rng: np.random.Generator, geo: ViewGeometry, config: DetectorConfig
+) -> tuple[_Labelled, Bool[np.ndarray, "frames views people groups"], Float[np.ndarray, "frames views people groups"]]:
+    """Left/right swaps of each :data:`SWAP_GROUPS` group (more likely seen from the side): the labelled geometry,
+    which groups were swapped and their probability."""
+    n_f, n_v, n_p = geo.apparent_height.shape
+    n_g = len(SWAP_GROUPS)
     swap_probability = np.broadcast_to(
         _ramp(config.left_right_swap_probability + config.side_view_swap_probability * geo.sideness**2)[..., None],
         (n_f, n_v, n_p, n_g),
@@ -498,14 +538,21 @@ def detect_with_events(
     for g in range(n_g):
         in_group = _SWAP_SOURCE[g] != np.arange(_NUM_JOINTS)
         source = np.where(swapped[..., g, None] & in_group, _SWAP_SOURCE[g], source)
-    pixels = np.take_along_axis(geo.pixels, source[..., None], axis=3)
-    occlusion = np.take_along_axis(geo.occlusion, source, axis=3)
-    self_occlusion = np.take_along_axis(geo.self_occlusion, source, axis=3)
-    others_occlusion = np.take_along_axis(geo.others_occlusion, source, axis=3)
-    in_front = np.take_along_axis(geo.in_front, source, axis=3)
+    labelled = _Labelled(
+        pixels=np.take_along_axis(geo.pixels, source[..., None], axis=3),
+        occlusion=np.take_along_axis(geo.occlusion, source, axis=3),
+        self_occlusion=np.take_along_axis(geo.self_occlusion, source, axis=3),
+        others_occlusion=np.take_along_axis(geo.others_occlusion, source, axis=3),
+        in_front=np.take_along_axis(geo.in_front, source, axis=3),
+    )
+    return labelled, swapped, swap_probability
 
-    # Whole people missed.
-    size = _ramp((height - config.small_height) / (config.reference_height - config.small_height))
+
+def _miss_people(
+    rng: np.random.Generator, geo: ViewGeometry, size: Float[np.ndarray, "frames views people"], config: DetectorConfig
+) -> tuple[Bool[np.ndarray, "frames views people"], Float[np.ndarray, "frames views people"]]:
+    """Whole people missed from a view (more when small, occluded or truncated): which, and the probability.
+    ``size`` is 0 at :attr:`~DetectorConfig.small_height` and below, 1 from the reference height on."""
     visible_count = np.maximum(geo.inside.sum(-1), 1)
     mean_occlusion = np.where(geo.inside, geo.occlusion, 0.0).sum(-1) / visible_count
     outside = 1.0 - geo.inside.mean(-1)
@@ -515,53 +562,93 @@ def detect_with_events(
         + config.occluded_person_miss_probability * _ramp(2.0 * mean_occlusion - 1.0)
         + config.truncated_person_miss_probability * outside
     )
-    missed = rng.random((n_f, n_v, n_p)) < miss_probability
+    missed = rng.random(miss_probability.shape) < miss_probability
+    return missed, miss_probability
 
-    # Positions: noise scaled by apparent height (more when occluded), and rare outliers.
-    sigma = config.pixel_noise * height[..., None] * (1.0 + config.occluded_noise_gain * occlusion)
-    noisy = pixels + rng.standard_normal((n_f, n_v, n_p, _NUM_JOINTS, 2)) * sigma[..., None]
-    outlier = rng.random((n_f, n_v, n_p, _NUM_JOINTS)) < config.outlier_probability
-    outlier_offset = rng.standard_normal((n_f, n_v, n_p, _NUM_JOINTS, 2)) * (config.outlier_scale * height)[..., None, None]
+
+def _noisy_positions(
+    rng: np.random.Generator, labelled: _Labelled, height: Float[np.ndarray, "frames views people"],
+    image_size: Float[np.ndarray, "1 views 1 1 2"], config: DetectorConfig,
+) -> tuple[Float[np.ndarray, "frames views people 25 2"], Bool[np.ndarray, "frames views people 25"]]:
+    """Reported positions: noise scaled by the apparent height (more when occluded) and rare outliers; and
+    whether each lies in front of the camera and inside the image."""
+    shape = labelled.occlusion.shape
+    sigma = config.pixel_noise * height[..., None] * (1.0 + config.occluded_noise_gain * labelled.occlusion)
+    noisy = labelled.pixels + rng.standard_normal(shape + (2,)) * sigma[..., None]
+    outlier = rng.random(shape) < config.outlier_probability
+    outlier_offset = rng.standard_normal(shape + (2,)) * (config.outlier_scale * height)[..., None, None]
     noisy = noisy + np.where(outlier[..., None], outlier_offset, 0.0)
-    in_image = in_front & np.all((noisy >= 0.0) & (noisy <= image_size - 1.0), axis=-1)
+    in_image = labelled.in_front & np.all((noisy >= 0.0) & (noisy <= image_size - 1.0), axis=-1)
+    return noisy, in_image
 
-    # Confidences: type, size, image border and occlusion.
+
+def _confidences(
+    rng: np.random.Generator, labelled: _Labelled, noisy: Float[np.ndarray, "frames views people 25 2"],
+    in_image: Bool[np.ndarray, "frames views people 25"], missed: Bool[np.ndarray, "frames views people"],
+    height: Float[np.ndarray, "frames views people"], size: Float[np.ndarray, "frames views people"],
+    image_size: Float[np.ndarray, "1 views 1 1 2"], config: DetectorConfig,
+) -> tuple[Float[np.ndarray, "frames views people 25"], Bool[np.ndarray, "frames views people 25"]]:
+    """Confidences (joint type, size, image border, occlusion, noise) and which joints are reported: in the
+    image, person not missed, not dropped (more when occluded) and above the score threshold."""
+    shape = labelled.occlusion.shape
     border_distance = np.minimum(noisy, image_size - 1.0 - noisy).min(-1)
     border = _ramp(border_distance / np.maximum(config.border_margin * height[..., None], 1e-9))
     score = (
         np.asarray(config.base_scores)
         * (config.small_score_factor + (1.0 - config.small_score_factor) * size)[..., None]
         * (config.border_score_factor + (1.0 - config.border_score_factor) * border)
-        * (1.0 - config.occlusion_score_drop * occlusion)
-        + config.score_noise * rng.standard_normal((n_f, n_v, n_p, _NUM_JOINTS))
+        * (1.0 - config.occlusion_score_drop * labelled.occlusion)
+        + config.score_noise * rng.standard_normal(shape)
     )
     score = np.clip(score, 0.0, config.max_score)
     drop_probability = config.joint_dropout + np.maximum(
-        np.asarray(config.occluded_drop_probabilities) * others_occlusion,
-        np.asarray(config.self_occluded_drop_probabilities) * self_occlusion,
+        np.asarray(config.occluded_drop_probabilities) * labelled.others_occlusion,
+        np.asarray(config.self_occluded_drop_probabilities) * labelled.self_occlusion,
     )
-    drop = rng.random((n_f, n_v, n_p, _NUM_JOINTS)) < drop_probability
+    drop = rng.random(shape) < drop_probability
     reported = in_image & ~missed[..., None] & ~drop & (score >= config.score_threshold)
+    return score, reported
 
-    # PAFs between people, dense (F, V, pairs, P, P): [p, q] links p's joint a to q's joint b.
-    pair_a = np.array([a for a, _ in BODY25_PAF_PAIRS])
-    pair_b = np.array([b for _, b in BODY25_PAF_PAIRS])
-    pair_occlusion = np.maximum(occlusion[..., pair_a], occlusion[..., pair_b])  # (F, V, P, K)
+
+def _true_pafs(
+    rng: np.random.Generator, occlusion: Float[np.ndarray, "frames views people 25"], config: DetectorConfig
+) -> Float[np.ndarray, "frames views people pairs"]:
+    """The PAF score of each person's own pairs: lower when occluded, noisy, sometimes missing (0)."""
+    pair_occlusion = np.maximum(occlusion[..., _PAIR_A], occlusion[..., _PAIR_B])
     true_paf = config.paf_mean * (1.0 - config.occlusion_paf_drop * pair_occlusion)
     true_paf = np.clip(true_paf + config.paf_noise * rng.standard_normal(true_paf.shape), 0.0, config.max_paf)
-    true_paf = np.where(rng.random(true_paf.shape) < config.paf_miss_probability, 0.0, true_paf)
-    # Identity swaps: person q's joint b close to person p's joint b in the image.
-    gap = noisy[:, :, :, None, pair_b, :] - noisy[:, :, None, :, pair_b, :]  # (F, V, P, Q, K, 2)
+    return np.where(rng.random(true_paf.shape) < config.paf_miss_probability, 0.0, true_paf)
+
+
+def _identity_swaps(
+    rng: np.random.Generator, noisy: Float[np.ndarray, "frames views people 25 2"],
+    reported: Bool[np.ndarray, "frames views people 25"], height: Float[np.ndarray, "frames views people"],
+    config: DetectorConfig,
+) -> tuple[Bool[np.ndarray, "frames views people people pairs"], Float[np.ndarray, "frames views people people pairs"]]:
+    """``[f, v, p, q, k]``: whether the PAF of pair k links person p's joint a to person q's joint b, likely when
+    q's joint b lies close to p's joint b in the image; and its probability."""
+    gap = noisy[:, :, :, None, _PAIR_B, :] - noisy[:, :, None, :, _PAIR_B, :]  # (F, V, P, Q, K, 2)
     gap = np.sqrt(np.sum(gap * gap, axis=-1)) / np.maximum(config.identity_swap_radius * height, 1e-9)[..., None, None]
-    both = reported[:, :, :, None, pair_a] & reported[:, :, None, :, pair_b]
+    both = reported[:, :, :, None, _PAIR_A] & reported[:, :, None, :, _PAIR_B]
+    n_p = noisy.shape[2]
     identity_swap_probability = np.where(
         both & ~np.eye(n_p, dtype=bool)[:, :, None], config.identity_swap_probability * np.exp(-0.5 * gap**2), 0.0
     )
     identity_swapped = rng.random(identity_swap_probability.shape) < identity_swap_probability
+    return identity_swapped, identity_swap_probability
 
-    # Spurious candidates: slots after the people's, per joint type.
+
+def _spurious_candidates(
+    rng: np.random.Generator, geo: ViewGeometry, image_size: Float[np.ndarray, "1 views 1 1 2"],
+    config: DetectorConfig,
+) -> tuple[
+    Float[np.ndarray, "frames views 25 spurious 2"], Float[np.ndarray, "frames views 25 spurious"],
+    Bool[np.ndarray, "frames views 25 spurious"],
+]:
+    """Up to :attr:`~DetectorConfig.max_spurious_per_joint` false candidates per joint type, view and frame, near
+    a random person's joint or uniform in the image: positions, scores, and which are reported."""
+    n_f, n_v, n_p = geo.apparent_height.shape
     n_s = config.max_spurious_per_joint
-    n_slots = n_p + n_s
     n_spurious = np.minimum(rng.poisson(config.spurious_per_view / _NUM_JOINTS, (n_f, n_v, _NUM_JOINTS)), n_s)
     host = rng.integers(0, max(n_p, 1), (n_f, n_v, _NUM_JOINTS, n_s))
     host_joint = rng.integers(0, _NUM_JOINTS, (n_f, n_v, _NUM_JOINTS, n_s))
@@ -575,7 +662,7 @@ def detect_with_events(
         f_idx, v_idx = f_idx[:, :, None, None], v_idx[:, :, None, None]
         host_xy = geo.pixels[f_idx, v_idx, host, host_joint]
         host_ok = geo.in_front[f_idx, v_idx, host, host_joint]
-        near_xy = host_xy + 0.15 * height[f_idx, v_idx, host][..., None] * jitter
+        near_xy = host_xy + 0.15 * geo.apparent_height[f_idx, v_idx, host][..., None] * jitter
         near = near & host_ok
     else:
         near_xy = uniform_xy
@@ -583,13 +670,18 @@ def detect_with_events(
     spurious_ok = (np.arange(n_s) < n_spurious[..., None]) & np.all(
         (spurious_xy >= 0.0) & (spurious_xy <= image_size[:, :, :, 0][..., None, :] - 1.0), axis=-1
     )
+    return spurious_xy, spurious_score, spurious_ok
 
-    # Slot arrays (F, V, 25, slots): people first, then spurious.
-    slot_xy = np.concatenate([noisy.transpose(0, 1, 3, 2, 4), spurious_xy], axis=3)
-    slot_score = np.concatenate([score.transpose(0, 1, 3, 2), spurious_score], axis=3)
-    slot_valid = np.concatenate([reported.transpose(0, 1, 3, 2), spurious_ok], axis=3)
-    slot_person = np.concatenate([np.arange(n_p), np.full(n_s, -1)])
 
+def _paf_matrices(
+    rng: np.random.Generator, true_paf: Float[np.ndarray, "frames views people pairs"],
+    identity_swapped: Bool[np.ndarray, "frames views people people pairs"], config: DetectorConfig,
+) -> Float[np.ndarray, "frames views pairs slots slots"]:
+    """Dense PAFs between candidate slots (people first, then spurious): ``[.., k, s, t]`` links slot s's joint a
+    to slot t's joint b. A person's own pair gets its true PAF (weakened when identity-swapped), a swapped pair
+    the true PAF across people, everything else rare clutter."""
+    n_f, n_v, n_p, _ = true_paf.shape
+    n_slots = n_p + config.max_spurious_per_joint
     clutter = rng.random((n_f, n_v, _NUM_PAIRS, n_slots, n_slots)) < config.paf_clutter_probability
     paf = np.where(clutter, rng.uniform(0.15, 0.8, clutter.shape), 0.0)
     people_paf = paf[..., :n_p, :n_p]
@@ -599,8 +691,17 @@ def detect_with_events(
     people_paf = cross.transpose(0, 1, 4, 2, 3)
     people_paf[..., diagonal, diagonal] = weakened.transpose(0, 1, 3, 2)
     paf[..., :n_p, :n_p] = people_paf
+    return paf
 
-    # Raster order of the reported candidates, as OpenPose's peak search returns them.
+
+def _reported_candidates(
+    image_size: Float[np.ndarray, "1 views 1 1 2"], slot_xy: Float[np.ndarray, "frames views 25 slots 2"],
+    slot_score: Float[np.ndarray, "frames views 25 slots"], slot_valid: Bool[np.ndarray, "frames views 25 slots"],
+    slot_person: Int[np.ndarray, " slots"], paf: Float[np.ndarray, "frames views pairs slots slots"],
+) -> list[list[Detections]]:
+    """The valid slots as :class:`~mocap.Detections` ``[frame][view]``, each joint type's candidates in raster
+    order (as OpenPose's peak search returns them), the PAF matrices reordered to match."""
+    n_f, n_v = slot_valid.shape[:2]
     width = image_size[0, :, 0, 0, 0][None, :, None, None]
     raster = np.where(slot_valid, np.round(slot_xy[..., 1]) * width + slot_xy[..., 0], np.inf)
     order = np.argsort(raster, axis=-1, kind="stable")
@@ -609,8 +710,8 @@ def detect_with_events(
         np.concatenate([slot_xy, slot_score[..., None]], axis=-1), order[..., None], axis=3
     )
     person_ids = slot_person[order]
-    paf = np.take_along_axis(paf, order[:, :, pair_a, :, None], axis=3)
-    paf = np.take_along_axis(paf, order[:, :, pair_b, None, :], axis=4)
+    paf = np.take_along_axis(paf, order[:, :, _PAIR_A, :, None], axis=3)
+    paf = np.take_along_axis(paf, order[:, :, _PAIR_B, None, :], axis=4)
 
     frames = []
     for f in range(n_f):
@@ -623,8 +724,4 @@ def detect_with_events(
                 person_ids=tuple(person_ids[f, v, j, : n[j]].copy() for j in range(_NUM_JOINTS)),
             ))
         frames.append(views)
-    events = DetectorEvents(
-        geo, reported, missed, miss_probability, swapped, swap_probability, identity_swapped,
-        identity_swap_probability, (spurious_ok.sum(-1)).astype(np.float64),
-    )
-    return frames, events
+    return frames

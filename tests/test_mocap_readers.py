@@ -284,6 +284,25 @@ def test_crlf_parses_the_same(tmp_path):
     np.testing.assert_array_equal(bvh_lf.positions, bvh_crlf.positions)
 
 
+def test_asf_axes_follow_their_order_and_angle_unit(tmp_path):
+    """Root ``axis``/``orientation`` and bone ``axis`` lines: angle k turns about the k-th axis of the order, the
+    first applied first (SciPy's extrinsic Euler angles), in the ``:units angle`` unit."""
+    degrees = (ASF.replace("axis XYZ", "axis ZYX").replace("orientation 0 0 0", "orientation 10 -20 30")
+               .replace("axis 0 0 90 XYZ", "axis 40 25 -15 YXZ"))
+    def in_radians(*angles):
+        return " ".join(str(float(a)) for a in np.deg2rad(angles))
+
+    radians = (degrees.replace("angle deg", "angle rad")
+               .replace("orientation 10 -20 30", "orientation " + in_radians(10, -20, 30))
+               .replace("axis 40 25 -15 YXZ", "axis " + in_radians(40, 25, -15) + " YXZ"))
+    for name, text in (("deg.asf", degrees), ("rad.asf", radians)):
+        asf = mocap.read_asf(_write(tmp_path / name, text.splitlines()))
+        np.testing.assert_allclose(asf.root_axis, Rotation.from_euler("zyx", [10, -20, 30], degrees=True).as_matrix(),
+                                   atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(asf.axis["up"], Rotation.from_euler("yxz", [40, 25, -15], degrees=True).as_matrix(),
+                                   atol=1e-12, err_msg=name)
+
+
 @pytest.mark.parametrize("frames, line, message", [
     (AMC_FRAMES[:-1], 9, "has 2 bone lines"),  # truncated last frame
     (AMC_FRAMES[:2] + ["neck 1 2"] + AMC_FRAMES[3:], 5, "unknown bone 'neck'"),
