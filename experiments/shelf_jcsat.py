@@ -104,20 +104,19 @@ def main(config: Config) -> None:
         log_path = out / "log.jsonl"
         stages = [s for s in _STAGES if (s != "plot" or experiment.plot)
                   and (s != "jcsat" or experiment.method == "jcsat")]
-        bar = tqdm(total=len(stages), desc="shelf_jcsat", unit="stage")
-
         def log(event: dict) -> None:
             with log_path.open("a") as stream:
                 stream.write(json.dumps(event) + "\n")
 
-        def progress(stage: str) -> None:
-            if stage != "data":
-                bar.update(1)
-            bar.set_postfix_str(stage)
+        # Closed on an error too, so that the one-line error starts a line of its own.
+        with tqdm(total=len(stages), desc="shelf_jcsat", unit="stage") as bar:
+            def progress(stage: str) -> None:
+                if stage != "data":
+                    bar.update(1)
+                bar.set_postfix_str(stage)
 
-        result = jcsat_study.run_shelf_experiment(experiment, out, log=log, progress=progress)
-        bar.update(1)
-        bar.close()
+            result = jcsat_study.run_shelf_experiment(experiment, out, log=log, progress=progress)
+            bar.update(1)
     print(result.table)
     print(f"outputs in {config.out}/; total {result.metrics['total_seconds']:.1f} s")
 

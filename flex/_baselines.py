@@ -42,7 +42,8 @@ camera frame at frame t (root-relative, so the translation cancels):
   partly cancel it; the two differ little for perturbed extrinsics and much for a stale calibration of moving
   cameras.
 
-Joints that cannot be triangulated (fewer than two views with a positive confidence, or an ill-posed DLT) get
+Joints that cannot be triangulated (fewer than two views with a positive confidence, or an ill-posed DLT; a DLT
+point behind a camera is kept, as the algebraic triangulation has no such check) get
 the root-relative offset of the same joint at the nearest earlier frame where it and the root were determined
 (else the nearest later one), and the root itself (offset 0) when there is no such frame in the sequence, so the
 metrics never see NaN (a frame with an undetermined root thus takes every offset from its neighbours).
@@ -134,7 +135,8 @@ def _dlt(
     """Confidence-weighted DLT per joint and frame of one sequence, world metres, and which joints it determined."""
 
     def frame(P_t, points_t, weights_t):
-        result = geometry.triangulate(P_t, jnp.swapaxes(points_t, 0, 1), jnp.swapaxes(weights_t, 0, 1))
+        result = geometry.triangulate(P_t, jnp.swapaxes(points_t, 0, 1), jnp.swapaxes(weights_t, 0, 1),
+                                      require_in_front=False)
         return result.point, result.valid
 
     return jax.vmap(frame)(P, points, weights)

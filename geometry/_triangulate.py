@@ -69,7 +69,7 @@ class Triangulation(NamedTuple):
     no depth), the point is well determined (not a near-double null space, e.g. consistent rays from
     one centre), finite (``|point| <= max_distance``; a point at infinity from parallel rays fails
     this) and in front of every camera with positive weight (positive depth: a camera cannot have
-    seen a point behind it)."""
+    seen a point behind it; not checked with ``require_in_front=False``)."""
     reprojection_error: Float[Array, "*batch views"]
     """Distance in pixels between each view's input point and the reprojected point; 0 for views with
     weight 0 and for invalid points."""
@@ -355,6 +355,7 @@ def triangulate_point(
     method: Method = "closed_form",
     normalise_rows: bool = False,
     max_distance: float = 1e4,
+    require_in_front: bool = True,
 ) -> Triangulation:
     """Weighted DLT triangulation of ONE point from ``views`` undistorted pixel observations.
 
@@ -367,6 +368,8 @@ def triangulate_point(
         method: ``"closed_form"`` (fast, element-wise) or ``"svd"`` (LAPACK reference).
         normalise_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
         max_distance: points farther than this from the world origin (metres) are reported invalid.
+        require_in_front: report a point behind a used camera invalid (default). False keeps it, as the
+            purely algebraic DLT of the papers' baselines does (Structural Triangulation's LEM, FLEX's DLT).
 
     Returns:
         A :class:`Triangulation` without batch dimensions.
@@ -377,7 +380,9 @@ def triangulate_point(
     finite = jnp.abs(v[3]) * max_distance > jnp.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     well_posed = conditioning > _CONDITIONING_FLOOR * jnp.finfo(conditioning.dtype).eps
     in_front, baseline = _geometry_checks(projections, weights > 0, v)
-    valid = (problem.num_views >= 2) & finite & well_posed & in_front & baseline
+    valid = (problem.num_views >= 2) & finite & well_posed & baseline
+    if require_in_front:
+        valid = valid & in_front
     w = jnp.where(valid, v[3], 1)
     point = [jnp.where(valid, v[i] / w, 0) for i in range(3)]
     reprojection_error, residual = _reprojection(projections, points, problem, valid & (weights > 0), v, point)
@@ -444,7 +449,7 @@ def _check_inputs(projections: Array, points: Array, weights: ArrayLike | None, 
     raise AssertionError("unreachable: _has_bad_values and the host checks disagree")
 
 
-@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance"))
+@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance", "require_in_front"))
 def _triangulate_flat(
     projections: Float[Array, "views 3 4"],
     points: Float[Array, "n views 2"],
@@ -452,10 +457,12 @@ def _triangulate_flat(
     method: Method,
     normalise_rows: bool,
     max_distance: float,
+    require_in_front: bool,
 ) -> Triangulation:
     if weights is None:
         weights = jnp.ones(points.shape[:-1], points.dtype)
-    kernel = partial(triangulate_point, method=method, normalise_rows=normalise_rows, max_distance=max_distance)
+    kernel = partial(triangulate_point, method=method, normalise_rows=normalise_rows, max_distance=max_distance,
+                     require_in_front=require_in_front)
     return jax.vmap(kernel, in_axes=(None, 0, 0))(projections, points, weights)
 
 
@@ -478,6 +485,7 @@ def triangulate(
     method: Method = "closed_form",
     normalise_rows: bool = False,
     max_distance: float = 1e4,
+    require_in_front: bool = True,
 ) -> Triangulation:
     """Triangulate points with any leading batch dimensions (points, joints, frames) from shared cameras.
 
@@ -493,6 +501,8 @@ def triangulate(
         method: ``"closed_form"`` (fast, element-wise; default) or ``"svd"`` (LAPACK reference).
         normalise_rows: scale each DLT row to unit norm before weighting (OpenCV does not).
         max_distance: points farther than this from the world origin (metres) are reported invalid.
+        require_in_front: report a point behind a used camera invalid (default). False keeps it, as the
+            purely algebraic DLT of the papers' baselines does (Structural Triangulation's LEM, FLEX's DLT).
 
     Returns:
         A :class:`Triangulation` whose leaves have the leading shape ``batch``.
@@ -506,12 +516,13 @@ def triangulate(
     weights = _check_inputs(projections, points, weights, method)
     views = projections.shape[0]
     flat = _triangulate_flat(
-        projections, _flatten(points, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalise_rows, float(max_distance)
+        projections, _flatten(points, (views, 2)), None if weights is None else _flatten(weights, (views,)), method,
+        normalise_rows, float(max_distance), bool(require_in_front)
     )
     return _unflatten(flat, points.shape[:-2])
 
 
-@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance"))
+@partial(jax.jit, static_argnames=("method", "normalise_rows", "max_distance", "require_in_front"))
 def _triangulate_pixels_flat(
     rig: Camera,
     pixels: Float[Array, "n views 2"],
@@ -519,11 +530,13 @@ def _triangulate_pixels_flat(
     method: Method,
     normalise_rows: bool,
     max_distance: float,
+    require_in_front: bool,
 ) -> Triangulation:
     by_view = jnp.moveaxis(pixels, 1, 0)
     undistorted = jax.vmap(partial(undistort_points, output="pixels"))(rig, by_view)
     return _triangulate_flat(
-        projection_matrix(rig), jnp.moveaxis(undistorted, 0, 1), weights, method, normalise_rows, max_distance
+        projection_matrix(rig), jnp.moveaxis(undistorted, 0, 1), weights, method, normalise_rows, max_distance,
+        require_in_front
     )
 
 
@@ -535,6 +548,7 @@ def triangulate_pixels(
     method: Method = "closed_form",
     normalise_rows: bool = False,
     max_distance: float = 1e4,
+    require_in_front: bool = True,
 ) -> Triangulation:
     """Like :func:`triangulate`, from a stacked ``Camera`` rig and observed (distorted) pixels.
 
@@ -547,6 +561,7 @@ def triangulate_pixels(
     weights = _check_inputs(projection_matrix(rig), pixels, weights, method)
     views = rig.K.shape[0]
     flat = _triangulate_pixels_flat(
-        rig, _flatten(pixels, (views, 2)), None if weights is None else _flatten(weights, (views,)), method, normalise_rows, float(max_distance)
+        rig, _flatten(pixels, (views, 2)), None if weights is None else _flatten(weights, (views,)), method,
+        normalise_rows, float(max_distance), bool(require_in_front)
     )
     return _unflatten(flat, pixels.shape[:-2])

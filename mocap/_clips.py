@@ -19,7 +19,7 @@ from __future__ import annotations
 import io
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
 import numpy as np
 from jaxtyping import Float
@@ -120,8 +120,9 @@ def _millimetres(positions: np.ndarray, name: str) -> np.ndarray:
     return mm.astype(np.int16)
 
 
-def save_clip(clip: Clip, path: str | Path) -> None:
-    """Write ``clip`` as int16 millimetres in a byte-for-byte deterministic ``.npz`` (fixed zip dates)."""
+def save_clip(clip: Clip, path: str | Path | BinaryIO) -> None:
+    """Write ``clip`` as int16 millimetres in a byte-for-byte deterministic ``.npz`` (fixed zip dates) to a path or
+    an open binary file (as :func:`training.write_atomically` hands it)."""
     arrays = {
         "body25": _millimetres(clip.body25, clip.name),
         "h36m17": _millimetres(clip.structri17, clip.name),

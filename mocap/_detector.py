@@ -415,6 +415,8 @@ def view_geometry(
     joints = np.asarray(joints, np.float64 if jax.config.jax_enable_x64 else np.float32)
     if joints.ndim != 4 or joints.shape[2:] != (_NUM_JOINTS, 3):
         raise ValueError(f"joints must have shape (frames, people, {_NUM_JOINTS}, 3), got {joints.shape}")
+    if 0 in joints.shape[:2]:
+        raise ValueError(f"joints must hold at least one frame and one person, got shape {joints.shape}")
     if not np.all(np.isfinite(joints)):
         raise ValueError("joints contain NaN or inf")
     if rig.K.ndim != 3:

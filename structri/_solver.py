@@ -503,7 +503,7 @@ def projection_matrices(
     return P
 
 
-def _check_values(name: str, values: Array, requirement: str, acceptable) -> None:
+def _check_values(name: str, values: ArrayLike, requirement: str, acceptable) -> None:
     """A one-line ValueError naming the first value outside ``acceptable`` (concrete inputs only: under jit the
     values are not known here, and the kernels stay free of checks)."""
     if isinstance(values, jax.core.Tracer):
@@ -544,6 +544,14 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
                              f"without the last axis), got {weights.shape}")
     _check_values("confidences", weights, "must be finite and >= 0 (0 drops a view)", lambda w: np.isfinite(w) & (w >= 0))
     _check_values("bone_lengths", lengths, "must be finite and > 0", lambda L: np.isfinite(L) & (L > 0))
+    _check_values("projections", P, "must be finite", np.isfinite)
+    if not isinstance(points_2d, jax.core.Tracer) and not isinstance(weights, jax.core.Tracer):
+        seen = np.asarray(weights) > 0
+        _check_values("points_2d", np.where(seen[..., None], np.asarray(points_2d), 0.0),
+                      "must be finite where the confidence is positive (NaN marks a missed joint only with "
+                      "confidence 0)", np.isfinite)
+        # A missed joint's NaN would still poison the weighted sums (0 * NaN): it enters as 0, which weight 0 drops.
+        points_2d = jnp.where(jnp.isfinite(points_2d), points_2d, 0.0)
     flat = int(np.prod(frames, dtype=int))
     args = (points_2d.reshape(flat, views, num_joints, 2),
             P.reshape((flat,) * (P.ndim > 3) + (views, 3, 4)),
@@ -613,7 +621,8 @@ def structural_triangulation(
     """Structural Triangulation with the Step Constraint Algorithm (paper Alg. 1, official code).
 
     Args:
-        points_2d: detections in pixels, ``(views, J, 2)`` for one frame or with leading frame axes.
+        points_2d: detections in pixels, ``(views, J, 2)`` for one frame or with leading frame axes; NaN
+            only where the confidence is 0 (a missed joint), else a ValueError names the first.
         cameras: a :class:`geometry.Camera` rig without distortion, or projection matrices
             ``(views, 3, 4)`` (shared) or ``(*frames, views, 3, 4)``.
         bone_lengths: target lengths in ``skeleton.bones`` order, shared or per frame.
@@ -702,8 +711,9 @@ def lem_triangulation(
     another unit are run in millimetres (``millimetres_per_unit``, 1000 for metres; 1 keeps the given
     unit) and the result is returned in the input unit.
 
-    A joint whose DLT is not determined (``valid`` False) gets the regularised LS point and
-    :attr:`Status.UNDERDETERMINED` for its frame."""
+    A joint whose DLT is not determined (fewer than two views, ill-posed or at infinity) gets the regularised LS
+    point and :attr:`Status.UNDERDETERMINED` for its frame; one the DLT puts behind a camera keeps that point, as
+    in the official code (``geometry.triangulate_point(..., require_in_front=False)``)."""
     frames, args, axes = _prepare(points_2d, cameras, np.ones(skeleton.num_joints - 1), skeleton, confidences)
     return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]),
                         _lem_flat(*args, axes=axes, skeleton=skeleton, scale=float(millimetres_per_unit)))
@@ -713,8 +723,9 @@ def lem_triangulation(
 def _lem_flat(points_2d, P, lengths, weights, *, axes, skeleton, scale):
     tree = _tree(skeleton)
     P_scaled = P.at[..., 3].multiply(scale)  # P [s X; 1] projects like P [X; 1] with t scaled by s
-    dlt = jax.vmap(jax.vmap(triangulate_point, in_axes=(None, 1, 1)), in_axes=(axes[1], 0, 0))(
-        P_scaled, points_2d, weights)
+    # The official DLT has no cheirality check: a joint it puts behind a camera keeps that point.
+    dlt = jax.vmap(jax.vmap(functools.partial(triangulate_point, require_in_front=False), in_axes=(None, 1, 1)),
+                   in_axes=(axes[1], 0, 0))(P_scaled, points_2d, weights)
     ls = _solve_flat(points_2d, P, lengths, weights, axes=axes, skeleton=skeleton, method="ls", n_steps=1,
                      schedule="length", degenerate_rcond=0.0, lagrangian=())
     pose = jnp.where(dlt.valid[..., None], dlt.point / scale, ls.pose)

@@ -174,13 +174,15 @@ def test_run_json_records_what_made_the_run(tmp_path):
     with _cli.run_folder(tmp_path / "run") as staging:
         (staging / "x").write_text("")
     record = json.loads((tmp_path / "run" / "run.json").read_text())
-    assert set(record) == {"versions", "git", "argv", "cwd", "device", "started", "finished"}
+    assert set(record) == {"versions", "git", "argv", "cwd", "xla_flags", "device", "started", "finished"}
+    assert "--xla_cpu_experimental_ynn_fusion_type=" in record["xla_flags"]  # the configuration numbers came from
     assert {"python", "jax", "jaxlib", "flax", "optax", "optimistix", "orbax-checkpoint", "numpy",
             "opencv-python-headless", "scipy", "mvmocap"} == set(record["versions"])
     assert record["versions"]["jax"] and record["versions"]["numpy"]
     assert len(record["git"]["commit"]) == 40 and isinstance(record["git"]["dirty"], bool)
     assert record["argv"] == sys.argv and record["cwd"] == os.getcwd()
-    assert set(record["device"]) == {"platform", "kind", "count", "cpu", "cpu_count"}
+    assert set(record["device"]) == {"platform", "kind", "count", "cpu", "cpu_features", "cpu_count"}
+    assert set(record["device"]["cpu_features"]) <= set(training.SIMD_FEATURES)
     assert record["device"]["count"] >= 1 and record["started"] <= record["finished"]
 
 

@@ -201,6 +201,8 @@ def test_identity_swaps_link_nearby_people():
 def test_bad_input_raises():
     with pytest.raises(ValueError, match="shape"):
         detect(jax.random.key(0), RING, np.zeros((3, 2, 17, 3)))
+    with pytest.raises(ValueError, match=r"at least one frame and one person, got shape \(3, 0, 25, 3\)"):
+        detect(jax.random.key(0), RING, np.zeros((3, 0, 25, 3)))
     bad = crowd(2, np.random.default_rng(0))
     bad[0, 0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):

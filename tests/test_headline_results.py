@@ -44,38 +44,41 @@ class Scores(NamedTuple):
     actor_mpjpe_mm: tuple[float, float, float]
 
 
-# `python -m experiments.shelf_jcsat --data-root DATA --out OUT` on 2026-11-25 (twice: identical), the figures the
-# README quotes. Another install of the same machine type printed up to 0.06 different averages the same day (model
-# 97.03 / 96.58, baseline 96.88 / 96.61 against 97.00 / 96.64 and 96.82 / 96.46 here, VoxelPose / JCSAT protocol)
-# and 0.3 on one actor (actor 2, model, JCSAT protocol: 93.2 against 93.5, one part of its 370): docs/jcsat.md.
+# `python -m experiments.shelf_jcsat --data-root DATA --out OUT` on 2026-11-25 (2-core AMD EPYC VM with AVX-512, jax
+# 0.10.1, numpy 2.4.6), the figures the README quotes; an earlier fresh install that day printed the same averages.
+# One other install of the same machine type and packages printed model 97.00 / 96.64 and baseline 96.82 / 96.46
+# (VoxelPose / JCSAT protocol) with the same code (byte-identical predictions before and after the package
+# restructure on each machine): the K-Means and tracking decisions of borderline frames differ between installs
+# (docs/jcsat.md, "Reproducibility across machines").
 SHELF = {
     "jcsat": {
-        "voxelpose": Scores(pcp=97.0021, mpjpe_mm=58.2242, actor_pcp=(99.6416, 94.5946, 96.7702),
-                            actor_mpjpe_mm=(56.2820, 62.4573, 55.9333)),
-        "jcsat": Scores(pcp=96.6418, mpjpe_mm=59.2598, actor_pcp=(99.6416, 93.5135, 96.7702),
-                        actor_mpjpe_mm=(56.2820, 65.5641, 55.9333)),
-        "4dassoc": Scores(pcp=97.0021, mpjpe_mm=58.2242, actor_pcp=(99.6416, 94.5946, 96.7702),
-                          actor_mpjpe_mm=(56.2820, 62.4573, 55.9333)),
+        "voxelpose": Scores(pcp=97.0260, mpjpe_mm=58.1862, actor_pcp=(99.7133, 94.5946, 96.7702),
+                            actor_mpjpe_mm=(56.1327, 62.4573, 55.9687)),
+        "jcsat": Scores(pcp=96.5756, mpjpe_mm=59.0648, actor_pcp=(99.7133, 93.2432, 96.7702),
+                        actor_mpjpe_mm=(56.1327, 65.0930, 55.9687)),
+        "4dassoc": Scores(pcp=97.0260, mpjpe_mm=58.1862, actor_pcp=(99.7133, 94.5946, 96.7702),
+                          actor_mpjpe_mm=(56.1327, 62.4573, 55.9687)),
     },
     "geometric": {
-        "voxelpose": Scores(pcp=96.8177, mpjpe_mm=57.5751, actor_pcp=(99.1756, 93.5135, 97.7640),
-                            actor_mpjpe_mm=(55.8691, 67.9917, 48.8644)),
-        "jcsat": Scores(pcp=96.4573, mpjpe_mm=58.7890, actor_pcp=(99.1756, 92.4324, 97.7640),
-                        actor_mpjpe_mm=(55.8691, 71.6335, 48.8644)),
-        "4dassoc": Scores(pcp=96.8177, mpjpe_mm=57.5751, actor_pcp=(99.1756, 93.5135, 97.7640),
-                          actor_mpjpe_mm=(55.8691, 67.9917, 48.8644)),
+        "voxelpose": Scores(pcp=96.8798, mpjpe_mm=57.6526, actor_pcp=(99.1756, 93.5135, 97.9503),
+                            actor_mpjpe_mm=(56.0975, 67.9891, 48.8712)),
+        "jcsat": Scores(pcp=96.6095, mpjpe_mm=58.8534, actor_pcp=(99.1756, 92.7027, 97.9503),
+                        actor_mpjpe_mm=(56.0975, 71.5916, 48.8712)),
+        "4dassoc": Scores(pcp=96.8798, mpjpe_mm=57.6526, actor_pcp=(99.1756, 93.5135, 97.9503),
+                          actor_mpjpe_mm=(56.0975, 67.9891, 48.8712)),
     },
 }
 # The 4D-association output (skel.txt) is a fixed file scored by the evaluator alone, the same under every protocol:
 # only the rounding of the pinned digits may differ.
 FOUR_D_ASSOCIATION = Scores(pcp=96.2674, mpjpe_mm=53.9272, actor_pcp=(99.7491, 91.3514, 97.7019),
                             actor_mpjpe_mm=(52.5426, 59.2741, 49.9648))
-# Tolerances of the methods' rows. Averages: 0.15 PCP points, over twice the largest move seen across installs
-# (0.06), under two parts of actor 2 (0.27 each). Per actor: 0.5 points, over the 0.3 seen across installs (one part
-# of actor 2). MPJPE: 1 mm on the average (installs moved it by 0.2 mm), 2 mm per actor (actor 2 has 37 frames, so one
-# borderline frame moves it further). Actor 4 is left out: it is not in the headline average and moved by 2 points
-# across installs. A collapse of the model or the baseline moves these by whole points or centimetres.
-PCP_TOLERANCE, ACTOR_PCP_TOLERANCE, MPJPE_TOLERANCE_MM, ACTOR_MPJPE_TOLERANCE_MM = 0.15, 0.5, 1.0, 2.0
+# Tolerances of the methods' rows, from the other install's figures against these: averages moved by up to 0.152 PCP
+# points (the baseline under the JCSAT protocol: one part of actor 2 and one of actor 3), actors by up to 0.27 (one
+# part of actor 2's 370), MPJPE by up to 0.2 mm on the average and 0.5 mm on one actor. The tolerances allow about
+# twice that: 0.3 points on an average, 0.5 per actor, 1 mm and 2 mm. Actor 4 is left out: it is not in the headline
+# average and moved by 2 points across installs. A collapse of the model or the baseline moves these by whole points
+# or centimetres.
+PCP_TOLERANCE, ACTOR_PCP_TOLERANCE, MPJPE_TOLERANCE_MM, ACTOR_MPJPE_TOLERANCE_MM = 0.3, 0.5, 1.0, 2.0
 EXACT_TOLERANCE = 1e-4  # the pinned values' rounding
 
 

@@ -29,8 +29,9 @@ def test_notebook_executes_and_shows_a_figure(path, monkeypatch, request):
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
     monkeypatch.setenv("NOTEBOOK_FRAMES", "30")
-    if request.config.getoption("--data-root"):  # the notebooks find it with mocap.find_data_root
-        monkeypatch.setenv("MVMOCAP_DATA_ROOT", request.config.getoption("--data-root"))
+    if request.config.getoption("--data-root"):  # the notebooks find it with mocap.find_data_root; absolute,
+        # because the kernel runs in notebooks/ and `make test` passes a path relative to the repository
+        monkeypatch.setenv("MVMOCAP_DATA_ROOT", str(Path(request.config.getoption("--data-root")).resolve()))
     # The kernel must be this interpreter (the venv with the editable install) and see the repo.
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(path.parents[1]), os.environ.get("PYTHONPATH", "")]))
     monkeypatch.setenv("PATH", os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]))

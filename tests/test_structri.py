@@ -393,3 +393,22 @@ def test_negative_confidences_are_refused(scene):
                   lambda *a, confidences: lem_triangulation(a[0], a[1], confidences=confidences)):
         with pytest.raises(ValueError, match=r"confidences must be finite and >= 0 .*got -0.5 at index \(2, 1, 7\)"):
             solve(points, P, LENGTHS, confidences=conf)
+
+
+def test_nan_points_are_refused_unless_their_confidence_is_zero(scene):
+    _, _, points, P = scene
+    points = np.array(points)
+    conf = np.full(points.shape[:-1], 0.25)
+    points[1, 2, 5] = np.nan
+    with pytest.raises(ValueError, match=r"points_2d must be finite where the confidence is positive .* got nan "
+                                         r"at index \(1, 2, 5, 0\)"):
+        structural_triangulation(points, P, LENGTHS, confidences=conf)
+    with pytest.raises(ValueError, match="points_2d must be finite"):
+        structural_triangulation(points, P, LENGTHS)  # default confidences: every view counts
+    conf[1, 2, 5] = 0.0  # a missed detection: NaN is allowed and dropped like any view of weight 0
+    finite = np.where(np.isnan(points), 123.0, points)
+    for solve in (lambda x: structural_triangulation(x, P, LENGTHS, confidences=conf),
+                  lambda x: ls_triangulation(x, P, confidences=conf), lambda x: lem_triangulation(x, P, confidences=conf)):
+        np.testing.assert_array_equal(np.asarray(solve(points).pose), np.asarray(solve(finite).pose))
+        assert np.isfinite(np.asarray(solve(points).pose)).all()
+

@@ -374,6 +374,10 @@ def test_point_behind_the_cameras_is_invalid(method):
     result = triangulate(projections, project(projections, behind), method=method)
     assert not np.asarray(result.valid).any()
     assert np.all(np.asarray(result.point) == 0)
+    # The papers' algebraic baselines have no such check: require_in_front=False keeps the DLT's point.
+    kept = triangulate(projections, project(projections, behind), method=method, require_in_front=False)
+    assert np.asarray(kept.valid).all()
+    np.testing.assert_allclose(np.asarray(kept.point), behind, atol=1e-6)
     in_front = triangulate(projections, project(projections, points), method=method)
     assert np.asarray(in_front.valid).all()
     # Behind one used camera only is refused too; a view with weight 0 does not count.

@@ -18,6 +18,7 @@ from ._loop import data_parallel_shardings as data_parallel_shardings
 from ._loop import run_training as run_training
 from ._loop import to_jsonable as to_jsonable
 from ._provenance import provenance as provenance
+from ._provenance import SIMD_FEATURES as SIMD_FEATURES
 from ._store import load_model_state as load_model_state
 from ._store import save_model as save_model
 

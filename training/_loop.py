@@ -148,8 +148,9 @@ def run_training(
 
         first = int(state.step)
         timer_start, timer_steps = None, 0
-        bar = tqdm.tqdm(total=steps, initial=first, disable=not progress, desc=description)
-        with log_path.open("a") as log_file:
+        # The bar is closed on an error or a kill too, so that what is printed next starts a line of its own.
+        with (tqdm.tqdm(total=steps, initial=first, disable=not progress, desc=description) as bar,
+              log_path.open("a") as log_file):
             for i in range(first, steps):
                 state, metrics = step(state, i)
                 done = i + 1
@@ -177,6 +178,5 @@ def run_training(
                     jax.block_until_ready(state)
                     timer_start, timer_steps = time.perf_counter(), 0
                 bar.update(1)
-        bar.close()
         manager.wait_until_finished()
     return state

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["provenance"]
+__all__ = ["SIMD_FEATURES", "provenance"]
 
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "optimistix", "orbax-checkpoint", "numpy", "opencv-python-headless",
             "scipy", "mvmocap")
@@ -38,29 +38,41 @@ def _git() -> dict[str, Any]:
         return {"commit": None, "dirty": None}
 
 
-def _cpu_model() -> str | None:
+SIMD_FEATURES = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16")
+"""CPU instruction sets a run records: XLA's CPU code depends on them, and results that hinge on borderline
+decisions (Shelf tracking, docs/jcsat.md) have differed between installs."""
+
+
+def _cpu() -> tuple[str | None, list[str] | None]:
+    """The CPU model and which of :data:`SIMD_FEATURES` it has (from ``/proc/cpuinfo``; None where unknown)."""
+    model, flags = None, None
     try:
         with open("/proc/cpuinfo") as stream:
             for line in stream:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and model is None:
+                    model = value.strip()
+                elif key.strip() == "flags" and flags is None:
+                    flags = set(value.split())
     except OSError:
         pass
-    return platform.processor() or None
+    return model or platform.processor() or None, None if flags is None else [f for f in SIMD_FEATURES if f in flags]
 
 
 def provenance() -> dict[str, Any]:
     """A JSON-ready record of what is running now: ``versions`` (python and :data:`PACKAGES`), ``git``
-    (``commit``, ``dirty``), ``argv``, ``cwd`` and ``device`` (jax platform, device kind and count, CPU model
-    and cores). Asking jax for its devices starts its backend: call this once the runtime is configured."""
+    (``commit``, ``dirty``), ``argv``, ``cwd``, ``xla_flags`` and ``device`` (jax platform, device kind and
+    count, CPU model, instruction sets and cores). Asking jax for its devices starts its backend: call this once the runtime is configured."""
     import jax
 
     devices = jax.devices()
+    cpu, cpu_features = _cpu()
     return {
         "versions": {"python": platform.python_version(), **{name: _version(name) for name in PACKAGES}},
         "git": _git(),
         "argv": list(sys.argv),
         "cwd": os.getcwd(),
+        "xla_flags": os.environ.get("XLA_FLAGS"),
         "device": {"platform": jax.default_backend(), "kind": devices[0].device_kind, "count": len(devices),
-                   "cpu": _cpu_model(), "cpu_count": os.cpu_count()},
+                   "cpu": cpu, "cpu_features": cpu_features, "cpu_count": os.cpu_count()},
     }
