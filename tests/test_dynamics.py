@@ -145,33 +145,3 @@ def test_a_bad_evaluation_option_is_refused_by_name(option, value, message):
 
     with pytest.raises(ValueError, match=message):
         EvalConfig(**{option: value})
-
-
-@pytest.mark.slow
-def test_experiment_on_the_shipped_models_writes_every_output(tmp_path):
-    from dynamics import SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, load_trained, load_transformers
-    from experiments.dynamics_study import run_experiment
-
-    backbone, model = load_trained(SHIPPED_MODEL)
-    mpjat = load_transformers(SHIPPED_TRANSFORMERS)["MPJAT"]
-    config = EvalConfig(data=DataConfig(clips=("60_05_61_05_salsa",), renders=1, augmented_epochs=1, jitter=False,
-                                        flip=False, seed=2_000), stride=120)
-    results = run_experiment(tmp_path, backbone, {"PHD+T": model, "MPJAT": mpjat}, BODY, config, progress=False)
-    two_person = results["summary"]["two_person"]
-    assert two_person["samples"] == 2 * 4  # two people, windows starting at frames 0, 120, 240, 360
-    for method in ("PHD+T", "MPJAT", "ZeroMotion"):
-        assert len(two_person["prediction"][method]["mpjpe"]) == config.horizon
-        assert all(np.isfinite(two_person["prediction"][method][m]).all() for m in ("pa_mpjpe", "mpjpe", "pck", "root"))
-        assert np.all(np.asarray(two_person["penetration"][method]) >= 0)
-    assert "ground truth" in two_person["penetration"]
-    # The shipped models' MPJPE (mm) at future frames 1, 10 and 30 on these samples, measured on 2026-11-25: run to
-    # run exact, across installs float noise far below the tolerance; a collapsed or swapped model moves them by mm.
-    pinned = {"PHD+T": (188.196, 200.014, 186.531), "MPJAT": (184.449, 188.696, 172.145),
-              "ZeroMotion": (188.099, 197.801, 183.408)}
-    measured = {method: tuple(two_person["prediction"][method]["mpjpe"][k - 1] for k in (1, 10, 30))
-                for method in pinned}
-    assert all(measured[m] == pytest.approx(pinned[m], rel=1e-3) for m in pinned), measured
-    for name in ("results.json", "results.md", "prediction_two_person.png", "strip.png"):
-        assert (tmp_path / name).is_file()
-    markdown = (tmp_path / "results.md").read_text()
-    assert "| ZeroMotion |" in markdown and "| MPJAT |" in markdown and "Interpenetration" in markdown

@@ -219,3 +219,12 @@ def test_dynamics_quick_on_the_shipped_models(tmp_path):
                 for method, metrics in two_person.items()}
     assert measured.keys() == DYNAMICS_QUICK.keys()
     _assert_table(measured, DYNAMICS_QUICK)
+    # The rest of what the run writes (this is the test of the experiment's outputs too).
+    for method, metrics in two_person.items():
+        assert all(len(metrics[name]) == 30 for name in ("mpjpe", "pa_mpjpe", "pck", "root")), method
+    assert all(value >= 0 for method in DYNAMICS_QUICK for value in summary["two_person"]["penetration"][method])
+    assert "ground truth" in summary["two_person"]["penetration"]
+    for name in ("results.md", "prediction_two_person.png", "strip.png", "run.json"):
+        assert (tmp_path / name).is_file(), name
+    markdown = (tmp_path / "results.md").read_text()
+    assert "| ZeroMotion |" in markdown and "| MPJAT |" in markdown and "Interpenetration" in markdown

@@ -123,7 +123,7 @@ def test_triangulation_under_jit_equals_eager_at_100k_points(dtype):
     weights = np.ones((len(points), 2), dtype)
     jitted = triangulate(projections, pixels, weights)
     with jax.disable_jit():
-        eager = _triangulate_flat(jnp.asarray(projections), jnp.asarray(pixels), jnp.asarray(weights), "closed_form", False, 1e4)
+        eager = _triangulate_flat(jnp.asarray(projections), jnp.asarray(pixels), jnp.asarray(weights), "closed_form", False, 1e4, True)
     assert bool(jitted.valid.all()) and bool(eager.valid.all())
     tolerance = 1e-9 if dtype == np.float64 else 1e-3
     np.testing.assert_allclose(jitted.point, eager.point, rtol=tolerance, atol=tolerance)
