@@ -17,6 +17,7 @@ import io
 import re
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn, TypeVar
@@ -114,7 +115,7 @@ def run(main: Callable[[C], object], config_type: type[C], *, description: str |
     ``float64``: whether the run needs ``jax_enable_x64`` (a function of the config where an option decides);
     it is set explicitly either way, with XLA's faulty CPU fusion turned off, before ``main`` starts.
     Exit status: 0 on success, 2 for a bad option or any error (one line ``prog: error: ...`` on stderr;
-    ``--debug``: the traceback instead), 130 when interrupted.
+    ``--debug``: the traceback instead), 130 when interrupted. Warnings print as one line ``prog: warning: ...``.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
@@ -126,6 +127,8 @@ def run(main: Callable[[C], object], config_type: type[C], *, description: str |
     import jax
 
     jax.config.update("jax_enable_x64", float64(config) if callable(float64) else float64)
+    # A warning to the user of a command reads like its errors: one line naming the command, not a source line.
+    warnings.formatwarning = lambda message, category, *_, **__: f"{prog}: warning: {message}\n"
     try:
         status = main(config)
     except KeyboardInterrupt:
