@@ -545,13 +545,12 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
     _check_values("confidences", weights, "must be finite and >= 0 (0 drops a view)", lambda w: np.isfinite(w) & (w >= 0))
     _check_values("bone_lengths", lengths, "must be finite and > 0", lambda L: np.isfinite(L) & (L > 0))
     _check_values("projections", P, "must be finite", np.isfinite)
-    if not isinstance(points_2d, jax.core.Tracer) and not isinstance(weights, jax.core.Tracer):
-        seen = np.asarray(weights) > 0
-        _check_values("points_2d", np.where(seen[..., None], np.asarray(points_2d), 0.0),
+    if not isinstance(weights, jax.core.Tracer):
+        _check_values("points_2d", jnp.where(weights[..., None] > 0, points_2d, 0.0),
                       "must be finite where the confidence is positive (NaN marks a missed joint only with "
                       "confidence 0)", np.isfinite)
-        # A missed joint's NaN would still poison the weighted sums (0 * NaN): it enters as 0, which weight 0 drops.
-        points_2d = jnp.where(jnp.isfinite(points_2d), points_2d, 0.0)
+    # A missed joint's NaN would still poison the weighted sums (0 * NaN): it enters as 0, which weight 0 drops.
+    points_2d = jnp.where(jnp.isfinite(points_2d), points_2d, 0.0)
     flat = int(np.prod(frames, dtype=int))
     args = (points_2d.reshape(flat, views, num_joints, 2),
             P.reshape((flat,) * (P.ndim > 3) + (views, 3, 4)),

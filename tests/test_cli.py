@@ -4,6 +4,8 @@ import dataclasses
 import importlib
 import json
 import os
+import re
+import shutil
 import subprocess
 import sys
 import typing
@@ -12,6 +14,7 @@ from pathlib import Path
 import pytest
 import tyro
 
+import jcsat
 import mocap
 import training
 from experiments import _cli
@@ -224,3 +227,32 @@ def test_entry_point_process_that_fails_writes_no_outputs(tmp_path):
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("python -m experiments.structri_virtual: error: ") and "Traceback" not in result.stderr
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.data
+def test_entry_point_process_warns_in_one_line(data_root, tmp_path):
+    """A warning reads like an error: one line naming the command, no source line (here shelf_eval's coverage
+    warning for predictions of 10 frames; the process's other stderr lines are XLA's log)."""
+    predictions = mocap.predictions_from_4dassoc(data_root / "shelf" / "4d_association" / "skel.txt")
+    keep = predictions.frame < 310
+    mocap.write_predictions(tmp_path / "p.jsonl", mocap.PosePredictions(
+        *(x[keep] if x is not None else None for x in predictions)))
+    result = _run("shelf_eval", "--pred", str(tmp_path / "p.jsonl"), "--data-root", str(data_root),
+                  "--protocol", "jcsat")
+    assert result.returncode == 0, result.stderr
+    said = [line for line in result.stderr.splitlines() if "shelf_eval" in line or "Warning" in line]
+    assert said == ["python -m experiments.shelf_eval: warning: predictions cover 10 of the 279 evaluated frames "
+                    "(3.6%): every person in the other frames is scored a miss"]
+
+
+@pytest.mark.data
+def test_a_run_that_fails_under_its_progress_bar_says_so_on_a_line_of_its_own(data_root, tmp_path):
+    """The shipped model with a truncated ``state.npz`` fails in the bar's first stage; the bar is closed first."""
+    model = tmp_path / "model"
+    shutil.copytree(jcsat.SHIPPED_MODEL, model)
+    (model / "state.npz").write_bytes((model / "state.npz").read_bytes()[:1000])
+    result = _run("shelf_jcsat", "--data-root", str(data_root), "--model", str(model), "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert re.search(r"(^|\n)python -m experiments.shelf_jcsat: error: \S+state.npz cannot be read", result.stderr), \
+        result.stderr
+
