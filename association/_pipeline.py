@@ -25,6 +25,7 @@ from ._clustering import (
 )
 from ._geometric import (
     GeometricConfig,
+    GeometricPoses,
     fill_missing,
     geometric_poses,
     reject_temporal_outliers,
@@ -94,6 +95,10 @@ class BaselineResult(NamedTuple):
     person_cloud: PersonJointCloud
     seconds: dict[str, float]
     """Wall time of each stage (including compilation on the first call)."""
+    consensus: GeometricPoses
+    """The consensus re-triangulation per frame and centre slot (``track_of`` gives each slot's track), before
+    the structural refinement and the temporal filters: the 2D detections and weights each joint was
+    triangulated from, for re-solving the tracks with other triangulation methods."""
 
 
 def _timed(seconds: dict[str, float], name: str, fn, *args):
@@ -198,4 +203,4 @@ def run_geometric_baseline(
     ), config.duplicate_distance)
     seconds["assemble"] = time.perf_counter() - start
     return BaselineResult(predictions, body25, valid, present, cloud, clusters, track_of,
-                          person_cloud, seconds)
+                          person_cloud, seconds, poses)

@@ -1,6 +1,6 @@
 """Speed of the batched, jitted Structural Triangulation against the per-frame NumPy port.
 
-About 15 s on 2 CPU cores. Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
+About 20 s on 2 CPU cores. Prints one JSON object: frames/s of ST+SCA and of LEM (jax batched vs
 NumPy per frame, float64, STRUCTRI17, virtual round ring), the speed-up, the max relative difference, the
 compile times, and the optimistix reference's time per frame.
 """
@@ -37,8 +37,9 @@ class Config:
     """Pixel noise standard deviation."""
     seed: int = 0
     """Seed of the poses and the noise."""
-    repeats: int = 3
-    """Timed rounds; the best is kept."""
+    repeats: int = 7
+    """Timed rounds, each calling every contender once in turn; each one's best is kept (7: a busy spell of the
+    shared 2-core VM can slow three rounds in a row)."""
     json: bool = False
     """Print one JSON object (otherwise key: value lines)."""
 

@@ -2,8 +2,10 @@
 
 The poses come from the clips shipped in mocap/assets (no data folder). ``--quick``: 2 patterns x C in
 {2, 3, 4} x sigma in {2, 10}, 120 poses, under 2 minutes on 2 CPU cores; options given beside it override
-those values. Writes OUT/config.json, log.jsonl, results.json, results.md, mpjpe_vs_*.png and run.json,
-replacing OUT's previous outputs as a whole. Logic: :mod:`experiments.structri_study`.
+those values. ``--steps 1 2 ... 12`` adds the N-step study of both readings of Algorithm 1 (the official code's
+and the printed one, ``structri.structural_triangulation(multiplier_system=...)``). Writes OUT/config.json,
+log.jsonl, results.json, results.md, mpjpe_vs_*.png and run.json, replacing OUT's previous outputs as a whole,
+and prints results.md. Logic: :mod:`experiments.structri_study`.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class Config:
 def main(config: Config) -> None:
     with _cli.run_folder(config.out) as out:
         run_virtual(config.experiment(), out)
+    print((config.out / "results.md").read_text())
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ Batched, jit-compiled solvers (:func:`structural_triangulation` and the LS / LEM
 in the same API), per-frame :class:`Status` codes, bone-length estimation, and a certified float64
 constrained reference built on optimistix (:func:`constrained_reference`). The loop-based NumPy port of
 the official code, a test and benchmark oracle, is the submodule :mod:`structri.numpy_reference` (not
-re-exported here); the virtual-camera experiment lives in :mod:`experiments.structri_study`.
+re-exported here); the virtual-camera and real-Shelf experiments live in :mod:`experiments.structri_study`.
 """
 
 from importlib.metadata import version as _version

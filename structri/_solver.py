@@ -11,9 +11,9 @@ Hessian expressed in tree coordinates, so its inverse is the bone block of ``G^-
 ``A^-1 = C^T blockdiag(D_i^-1) C`` with C the joint-by-bone incidence matrix (+1 at the child, -1 at
 the parent). Applying ``A^-1`` is then a scatter to joints, seventeen 3x3 products and a gather of bone
 differences. SCA's accumulated first-order update ``T^i = T^(i-1) - 2 T^(i-1) Lambda_i T^(i-1)`` is
-applied matrix-free (``2^(i-1)`` applications of ``A^-1`` at step i, evaluated in a loop whose traced
-graph is linear in the number of steps), which for the paper's ``n_steps <= 9`` costs less than
-carrying the dense ``(3n)^3`` products. ``A`` and ``beta`` themselves are built only where a method
+applied matrix-free (``2^(i-1)`` applications of ``A^-1`` at step i: straight-line code for the paper's
+default N = 3, a loop whose traced graph is linear in the number of steps beyond), which for the paper's
+``n_steps <= 9`` costs less than carrying the dense ``(3n)^3`` products. ``A`` and ``beta`` themselves are built only where a method
 needs them (the exact-SCA variant, the Lagrangian baseline, the objective).
 
 The batched path is frames-last: frames are cut into chunks, and within a chunk every array carries
@@ -200,20 +200,34 @@ def _apply_a_inverse_to_bone_columns(tree: _Tree, D_inv: Float[Array, "joints 3 
     return via_child * jnp.moveaxis(at_child, 0, 1)[None] + via_parent * jnp.moveaxis(at_parent, 0, 1)[None]
 
 
-def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]) -> Float[Array, "bones 3 bones F"]:
-    """``T^L diag(b) D31`` for SCA's accumulated first-order inverse ``T^l = T^(l-1) - 2 T^(l-1) Lambda_l T^(l-1)``.
+_UNROLLED_LEVELS = 2
+"""Levels of ``T^L`` that :func:`_apply_sca_operator` applies as straight-line code (the paper's N = 3 needs
+two). Side by side (ST + SCA, N = 3, 4 views, 10k frames, 2 cores) the straight-line recursion ran 1.3x faster
+than the loop, whose state selects (``where``) copy every pending ``(bones, 3, bones)`` block per iteration."""
+
+
+def _apply_sca_operator(tree, D_inv, lambdas: list, first: Float[Array, "bones 3 *cols F"]) -> Float[Array, "bones 3 *cols F"]:
+    """``T^L x`` for SCA's accumulated first-order inverse ``T^l = T^(l-1) - 2 T^(l-1) Lambda_l T^(l-1)``
+    (``T^0 = A^-1``, ``L = len(lambdas)``), given ``first = A^-1 x`` (bone columns or one bone vector).
 
     ``T^L`` is a polynomial of degree ``2^L`` in ``A^-1``, and forming it densely costs ``(3n)^3`` per
-    level (slower than the whole matrix-free solve for the paper's N = 3). So it is applied
-    matrix-free, depth first over the binary recursion tree: ``2^L`` applications of ``A^-1`` (the
-    first on the sparse columns) in a ``fori_loop`` whose body carries one pending partial result
-    per level. The traced graph is O(L), not O(2^L)."""
-    first = _apply_a_inverse_to_bone_columns(tree, D_inv, b)
-    level = len(lambdas)
-    if level == 0:
-        return first
-    shape = (lambdas[0].shape[0], 1, 1) + lambdas[0].shape[1:]
+    level. So it is applied matrix-free: ``2^L - 1`` further applications of ``A^-1``. The lowest
+    ``_UNROLLED_LEVELS`` levels recurse in Python (straight-line code); the levels above run depth first over
+    the binary recursion tree in a ``fori_loop`` whose body carries one pending partial result per level, so the
+    traced graph stays O(L), not O(2^L), for the paper's N up to 9 and beyond."""
+    shape = (len(first),) + (1,) * (first.ndim - 2) + first.shape[-1:]
     scales = [lam.reshape(shape) for lam in lambdas]
+    unrolled, looped = scales[:_UNROLLED_LEVELS], scales[_UNROLLED_LEVELS:]
+
+    def low_levels(applied, levels):  # T^len(levels) x from applied = A^-1 x
+        if not levels:
+            return applied
+        y = low_levels(applied, levels[:-1])
+        return y - 2.0 * low_levels(_apply_a_inverse(tree, D_inv, levels[-1] * y), levels[:-1])
+
+    level = len(looped)
+    if level == 0:
+        return low_levels(first, unrolled)
 
     def carry_up(index, r, x, pending):
         # A 0 bit ends the first call of that level (the second call's input is Lambda r);
@@ -223,7 +237,7 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]
         for j in range(level):
             second_call = (jnp.right_shift(index, j) & 1) == 1
             first_ends = ~done & ~second_call
-            x = jnp.where(first_ends, scales[j] * r, x)
+            x = jnp.where(first_ends, looped[j] * r, x)
             r, pending[j] = (jnp.where(~done & second_call, pending[j] - 2.0 * r, r),
                              jnp.where(first_ends, r, pending[j]))
             done = done | first_ends
@@ -231,10 +245,10 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, b: Float[Array, "bones 3 F"]
 
     def leaf(index, state):
         x, pending, _ = state
-        return carry_up(index, _apply_a_inverse(tree, D_inv, x), x, pending)
+        return carry_up(index, low_levels(_apply_a_inverse(tree, D_inv, x), unrolled), x, pending)
 
     zeros = jnp.zeros_like(first)
-    state = carry_up(0, first, zeros, (zeros,) * level)
+    state = carry_up(0, low_levels(first, unrolled), zeros, (zeros,) * level)
     _, _, result = jax.lax.fori_loop(1, 2**level, leaf, state)
     return result
 
@@ -322,26 +336,36 @@ def _target_sq(bones, lengths, step: int, n_steps: int, schedule: str):
 
 
 def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[Array, "bones #F"],
-                     n_steps: int, schedule: str):
-    """Algorithm 1 with the code's ``T^(i-1)`` in the multiplier system.
+                     n_steps: int, schedule: str, multiplier_system: str):
+    """Algorithm 1 with ``T^(i-1)`` (the code, ``multiplier_system="current"``) or ``T^0 = A^-1`` (the printed
+    line 6, ``"initial"``) in step i's multiplier system; both update ``b^i = T^i beta = b^(i-1) - 2 T^(i-1)
+    Lambda_i b^(i-1)``. With ``T^0`` only the update passes through ``T^(i-1)``, applied to one vector
+    instead of n columns.
 
     Returns ``(b, sum lambda, ok)`` of the N-step run and of a single ST step (which shares the
     first step's multiplier system: same ``b0``, final targets)."""
     b, lambdas, solvable = b0, [], jnp.array(True)
     for step in range(1, n_steps + 1):
         rhs = jnp.sum(b**2, axis=1) - _target_sq(b, lengths, step, n_steps, schedule)
-        U = _apply_sca_operator(tree, D_inv, lambdas, b)  # T^(step-1) diag(b) D31, (n, 3, n, F)
-        system = jnp.sum(b[:, :, None] * U, axis=1)
+        columns = _apply_a_inverse_to_bone_columns(tree, D_inv, b)  # A^-1 diag(b) D31, (n, 3, n, F)
+        if multiplier_system == "current":
+            columns = _apply_sca_operator(tree, D_inv, lambdas, columns)  # T^(step-1) diag(b) D31
+
+            def update(lam, columns=columns):  # T^(step-1) diag(b) D31 lam
+                return jnp.sum(columns * lam[None, None], axis=2)
+        else:
+            def update(lam, columns=columns, lambdas=tuple(lambdas)):
+                return _apply_sca_operator(tree, D_inv, list(lambdas), jnp.sum(columns * lam[None, None], axis=2))
+        system = jnp.sum(b[:, :, None] * columns, axis=1)
         system = 0.5 * (system + jnp.swapaxes(system, 0, 1))
         if step == 1:  # one elimination for both right-hand sides
             both = jnp.stack([rhs, jnp.broadcast_to(jnp.sum(b**2, axis=1) - lengths**2, rhs.shape)], axis=1)
             lam, lam_single = jnp.moveaxis(_solve_symmetric(system, both) / 4.0, 1, 0)
-            single = (b0 - 2.0 * jnp.sum(U * lam_single[None, None], axis=2), lam_single,
-                      jnp.all(jnp.isfinite(lam_single), axis=0))
+            single = (b0 - 2.0 * update(lam_single), lam_single, jnp.all(jnp.isfinite(lam_single), axis=0))
         else:
             lam = _solve_symmetric(system, rhs) / 4.0
         solvable &= jnp.all(jnp.isfinite(lam), axis=0)
-        b = b - 2.0 * jnp.sum(U * lam[None, None], axis=2)
+        b = b - 2.0 * update(lam)
         lambdas.append(lam)
     return (b, sum(lambdas), solvable), single
 
@@ -427,10 +451,12 @@ def _default_weights(views, num_joints, confidences, dtype):
 
 def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array, "views 3 4 #F"],
            lengths: Float[Array, "bones #F"], weights: Float[Array, "views joints F"], *, skeleton, method,
-           n_steps, schedule, degenerate_rcond, max_length_error, lagrangian) -> StructriResult:
+           n_steps, schedule, multiplier_system, degenerate_rcond, max_length_error, lagrangian) -> StructriResult:
     """One chunk of frames, frames on the last axis of every input and output."""
     tree = _tree(skeleton)
-    D, m = _quadratic_form(points_2d, projections, weights)
+    # The barrier materialises D and m once: without it XLA re-derives them from the 2D points inside each of
+    # their consumers' fusions, and ST + SCA ran 1.15x slower (N = 3, 4 views, 10k frames, side by side).
+    D, m = jax.lax.optimization_barrier(_quadratic_form(points_2d, projections, weights))
     D_inv, rcond = _inverse_3x3(D)
     min_rcond = jnp.min(rcond, axis=0)
     underdetermined = ~(min_rcond > 1e-12)
@@ -452,7 +478,8 @@ def _chunk(points_2d: Float[Array, "views joints 2 F"], projections: Float[Array
     b0 = ls_bones
     single = jnp.zeros(underdetermined.shape, bool)
     if method == "st":
-        (b, lam, solvable), (b1, lam1, solvable1) = _sca_first_order(tree, D_inv, b0, lengths, n_steps, schedule)
+        (b, lam, solvable), (b1, lam1, solvable1) = _sca_first_order(tree, D_inv, b0, lengths, n_steps, schedule,
+                                                                            multiplier_system)
         if n_steps > 1:
             single = min_rcond < degenerate_rcond
             b, lam, solvable = (jnp.where(single[None, None], b1, b), jnp.where(single[None], lam1, lam),
@@ -563,14 +590,14 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
 _CHUNK_FRAMES = 128
 """Frames per chunk of the frames-last kernels, so that each chunk's working set stays in cache (one
 of SCA's bones x 3 x bones operators holds 6 KB per frame in float64, 0.8 MB per chunk of 128); the
-chunks run sequentially under ``lax.map``. Side by side (ST + SCA, 4 views, 10k frames,
-2 cores): 64 frames 82k frames/s, 128 frames 87k, 256 frames 77k, 512 frames 50k."""
+chunks run sequentially under ``lax.map``. Side by side (ST + SCA, 4 views, 10k frames, 2 cores, 2026-11-25):
+32 frames 73k frames/s, 64 frames 77k, 128 frames 84k, 192 frames 85k, 256 frames 53k, 512 frames 38k."""
 
 
-@functools.partial(jax.jit, static_argnames=("axes", "skeleton", "method", "n_steps", "schedule",
+@functools.partial(jax.jit, static_argnames=("axes", "skeleton", "method", "n_steps", "schedule", "multiplier_system",
                                               "degenerate_rcond", "max_length_error", "lagrangian"))
 def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_steps, schedule,
-                degenerate_rcond, lagrangian, max_length_error=float("inf")):
+                degenerate_rcond, lagrangian, multiplier_system="current", max_length_error=float("inf")):
     """Frames-first flat inputs -> frames-last chunks -> :func:`_chunk` under ``lax.map`` -> frames-first."""
     frames = points_2d.shape[0]
     chunk = max(1, min(frames, _CHUNK_FRAMES))
@@ -583,6 +610,7 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
         return jnp.moveaxis(x.reshape((num_chunks, chunk) + x.shape[1:]), 1, -1)
 
     kernel = functools.partial(_chunk, skeleton=skeleton, method=method, n_steps=n_steps, schedule=schedule,
+                               multiplier_system=multiplier_system,
                                degenerate_rcond=degenerate_rcond, max_length_error=max_length_error,
                                lagrangian=dict(lagrangian) if lagrangian else None)
     shared = [x[..., None] if axis is None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
@@ -596,11 +624,12 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
 
 
 def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_steps=1,
-           schedule="length", degenerate_rcond=0.0, lagrangian=(), max_length_error=float("inf")):
+           schedule="length", degenerate_rcond=0.0, lagrangian=(), max_length_error=float("inf"),
+           multiplier_system="current"):
     frames, args, axes = _prepare(points_2d, cameras, bone_lengths, skeleton, confidences)
     out = _solve_flat(*args, axes=axes, skeleton=skeleton, method=method, n_steps=n_steps,
                       schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian,
-                      max_length_error=max_length_error)
+                      max_length_error=max_length_error, multiplier_system=multiplier_system)
     return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]), out)
 
 
@@ -613,6 +642,7 @@ def structural_triangulation(
     n_steps: int = 3,
     *,
     schedule: str = "length",
+    multiplier_system: str = "current",
     update: str = "first_order",
     degenerate_rcond: float = 1e-3,
     max_length_error: float = 0.5,
@@ -631,6 +661,10 @@ def structural_triangulation(
             ``A^-1`` in all (its traced graph grows linearly in N; the paper uses N <= 9).
         schedule: ``"length"`` interpolates lengths (official code, default) or ``"squared"`` squared
             lengths (paper Eq. 16).
+        multiplier_system: ``"current"`` builds step i's multiplier system with the accumulated ``T^(i-1)``
+            (official code, default) or ``"initial"`` with ``T^0 = A^-1`` (the printed Algorithm 1, line 6);
+            the update uses ``T^(i-1)`` in both, and they agree for ``n_steps = 1``. The paper's printed
+            variant is ``schedule="squared", multiplier_system="initial"``.
         update: ``"first_order"`` (Alg. 1's accumulated ``T^i``) or ``"exact"`` (re-solves
             ``A + 2 Lambda`` each step; dense, slower).
         degenerate_rcond: frames whose worst joint has a reciprocal condition number (of its 3x3
@@ -647,13 +681,18 @@ def structural_triangulation(
         raise ValueError(f"schedule must be 'length' or 'squared', got {schedule!r}")
     if update not in ("first_order", "exact"):
         raise ValueError(f"update must be 'first_order' or 'exact', got {update!r}")
+    if multiplier_system not in ("current", "initial"):
+        raise ValueError(f"multiplier_system must be 'current' or 'initial', got {multiplier_system!r}")
+    if update == "exact" and multiplier_system != "current":
+        raise ValueError("multiplier_system='initial' is a variant of the first-order update, not of update='exact'")
     if int(n_steps) < 1:
         raise ValueError(f"n_steps must be >= 1, got {n_steps}")
     if not max_length_error > 0:
         raise ValueError(f"max_length_error must be > 0, got {max_length_error}")
     method = "st" if update == "first_order" else "st_exact"
     return _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, int(n_steps),
-                  schedule, float(degenerate_rcond), max_length_error=float(max_length_error))
+                  schedule, float(degenerate_rcond), max_length_error=float(max_length_error),
+                  multiplier_system=multiplier_system)
 
 
 def ls_triangulation(

@@ -39,8 +39,14 @@ def numpy_structural_triangulation(
     confidences: np.ndarray | None = None,
     n_steps: int = 3,
     method: str = "ST",
+    schedule: str = "length",
+    multiplier_system: str = "current",
 ) -> np.ndarray:
-    """One frame of ST + SCA (``method="ST"``, the official length schedule) or of LS (``"LS"``)."""
+    """One frame of ST + SCA (``method="ST"``) or of LS (``"LS"``).
+
+    The defaults are the official code: lengths interpolated, ``T^(i-1)`` in the multiplier system.
+    ``schedule="squared", multiplier_system="initial"`` is the printed Algorithm 1 (Eq. 16 and ``T^(0)`` in
+    line 6)."""
     views, num_joints, _ = points_2d.shape
     n = num_joints - 1
     weights = np.full((views, num_joints), 1.0 / views) if confidences is None else confidences
@@ -56,12 +62,16 @@ def numpy_structural_triangulation(
     b = np.linalg.solve(A, beta)
     if method == "ST":
         D31 = np.kron(np.eye(n), np.ones((3, 1)))
-        T = np.linalg.solve(A, np.eye(3 * n))
+        T = T0 = np.linalg.solve(A, np.eye(3 * n))
         for i in range(n_steps):
             start = np.linalg.norm(b.reshape(n, 3), axis=1)
-            target = (start * (n_steps - i - 1) + bone_lengths) / (n_steps - i)
+            if schedule == "length":
+                target_sq = ((start * (n_steps - i - 1) + bone_lengths) / (n_steps - i)) ** 2
+            else:
+                target_sq = (start**2 * (n_steps - i - 1) + bone_lengths**2) / (n_steps - i)
             Db = np.diag(b)
-            lam = np.linalg.solve(D31.T @ Db @ T @ Db @ D31, start**2 - target**2) / 4
+            system = T if multiplier_system == "current" else T0
+            lam = np.linalg.solve(D31.T @ Db @ system @ Db @ D31, start**2 - target_sq) / 4
             T = (np.eye(3 * n) - 2 * T @ np.diag(np.repeat(lam, 3))) @ T
             b = T @ beta
     elif method != "LS":
@@ -71,11 +81,11 @@ def numpy_structural_triangulation(
 
 
 def numpy_structural_triangulation_frames(points_2d, projections, bone_lengths, skeleton=STRUCTRI17,
-                                          confidences=None, n_steps=3, method="ST") -> np.ndarray:
+                                          confidences=None, n_steps=3, method="ST", **options) -> np.ndarray:
     """Loop :func:`numpy_structural_triangulation` over frames ``(frames, views, J, 2) -> (frames, J, 3)``."""
     return np.stack([
         numpy_structural_triangulation(points_2d[f], projections, bone_lengths, skeleton,
-                                       None if confidences is None else confidences[f], n_steps, method)
+                                       None if confidences is None else confidences[f], n_steps, method, **options)
         for f in range(points_2d.shape[0])
     ])
 

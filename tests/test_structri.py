@@ -72,6 +72,9 @@ def test_matches_numpy_reference(scene):
         ref = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=steps)
         np.testing.assert_allclose(ours.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
         assert np.all(np.asarray(ours.status) == Status.OK)
+    squared = structural_triangulation(points, rig, LENGTHS, n_steps=3, schedule="squared")
+    ref = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=3, schedule="squared")
+    np.testing.assert_allclose(squared.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
     ls = ls_triangulation(points, P)
     ref = numpy_structural_triangulation_frames(points, P, LENGTHS, method="LS")
     np.testing.assert_allclose(ls.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
@@ -84,6 +87,23 @@ def test_matches_numpy_reference(scene):
     in_metres = np.asarray(lem_triangulation(points[:4], P, millimetres_per_unit=1.0).pose)
     np.testing.assert_allclose(in_metres[0], numpy_lem_triangulation(points[0], P), rtol=0, atol=1e-8)
     assert np.max(np.abs(in_metres - lem)) > 1e-3  # the unit matters
+
+
+@pytest.mark.parametrize("schedule", ["length", "squared"])
+def test_printed_algorithm_variant_matches_numpy_reference(scene, schedule):
+    """``multiplier_system="initial"`` (T^(0) in Algorithm 1's line 6) against the dense NumPy port of the same
+    variant; it is a different method from the code's T^(i-1) from the second step on."""
+    _, _, points, P = scene
+    ours = structural_triangulation(points, P, LENGTHS, n_steps=3, schedule=schedule, multiplier_system="initial",
+                                    max_length_error=float("inf"))
+    ref = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=3, schedule=schedule,
+                                                multiplier_system="initial")
+    np.testing.assert_allclose(ours.pose, ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
+    code = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=3, schedule=schedule)
+    assert np.max(np.abs(ref - code)) > 1e-6
+    one_step = [structural_triangulation(points, P, LENGTHS, n_steps=1, multiplier_system=system).pose
+                for system in ("current", "initial")]
+    np.testing.assert_array_equal(*one_step)
 
 
 def test_reduced_problem_matches_sparse_inverse(scene):
@@ -264,7 +284,7 @@ def test_virtual_experiment_smoke(tmp_path):
     import json
 
     cfg = VirtualConfig(patterns=("half",), views=(3,), sigmas=(4.0,), frames=24, reference_frames=1,
-                        lagrangian_iterations=20, estimate_frames=3, clips=("02_01_walk",))
+                        lagrangian_iterations=20, estimate_frames=3, clips=("02_01_walk",), steps=(1, 3))
     # In a float32 session the experiment computes in float64 for itself and leaves the session's setting alone.
     jax.config.update("jax_enable_x64", False)
     try:
@@ -272,13 +292,20 @@ def test_virtual_experiment_smoke(tmp_path):
         assert not jax.config.jax_enable_x64
     finally:
         jax.config.update("jax_enable_x64", True)  # the test session's setting (conftest.py)
-    for name in ("config.json", "log.jsonl", "results.json", "results.md", "mpjpe_vs_sigma.png", "mpjpe_vs_views.png"):
+    for name in ("config.json", "log.jsonl", "results.json", "results.md", "mpjpe_vs_sigma.png", "mpjpe_vs_views.png",
+                 "mpjpe_vs_steps.png"):
         assert (tmp_path / name).is_file(), name
     (cell,) = results["cells"]
     assert cell["mpjpe_mm"]["ST"] < cell["mpjpe_mm"]["LEM"]
     # Measured on 2026-11-25 (float64, seeded noise: run to run exact, across installs far inside 0.1 %).
     assert [cell["mpjpe_mm"][m] for m in ("LEM", "LS", "ST")] == pytest.approx([11.5668, 10.7204, 8.6802], rel=1e-3)
     assert cell["mpble_mm"]["ST"] < 0.5
+    # The N-step study: the code's variant at the experiment's N is the ST column; the variants agree at N = 1.
+    study = cell["step_study"]
+    assert study["code"]["3"]["mpjpe_mm"] == cell["mpjpe_mm"]["ST"]
+    assert study["code"]["1"]["mpjpe_mm"] == pytest.approx(study["printed"]["1"]["mpjpe_mm"], rel=1e-9)
+    assert study["code"]["3"]["mpjpe_mm"] != study["printed"]["3"]["mpjpe_mm"]
+    assert "N-step study, printed variant" in (tmp_path / "results.md").read_text()
     assert json.loads((tmp_path / "config.json").read_text())["frames"] == 24
 
 
@@ -294,6 +321,8 @@ def test_virtual_experiment_smoke(tmp_path):
     ("n_steps", -1, "n_steps must be >= 0"),
     ("reference_frames", -1, "reference_frames must be >= 0"),
     ("up_axis", "x", "up_axis must be 'y' or 'z'"),
+    ("steps", (3, 0), "steps must be distinct SCA step counts >= 1"),
+    ("steps", (2, 2), "steps must be distinct SCA step counts >= 1"),
 ])
 def test_a_bad_virtual_option_is_refused_by_name(option, value, message):
     with pytest.raises(ValueError, match=message):

@@ -43,7 +43,7 @@ from structri import (constrained_reference, estimate_bone_lengths, lagrangian_t
                       ls_triangulation, projection_matrices, reduced_objective, reduced_problem,
                       structural_triangulation)
 
-__all__ = ["METHODS", "VirtualConfig", "load_poses", "run_virtual", "write_report"]
+__all__ = ["METHODS", "ST_VARIANTS", "VirtualConfig", "load_poses", "run_virtual", "write_report"]
 
 METHODS = ("LEM", "DLT_m", "LS", "ST", "ST_exact", "Lagrangian", "ST_est")
 """LEM: the official DLT baseline, run in millimetres as the official code does; DLT_m: the same DLT run
@@ -87,6 +87,11 @@ class VirtualConfig:
     """Frames per cell (the first ones drawn) solved by the certified reference."""
     estimate_frames: int = 10
     """Frames per person whose LS bone lengths give the estimated lengths (ST*)."""
+    steps: tuple[int, ...] = ()
+    """The N-step study (paper Sect. 4.2: "MPJPE generally decreases with N ... when N >= 10 some frames
+    diverge"): ST with each of these SCA step counts N, in the official code's variant and in the printed
+    Algorithm 1's (:data:`ST_VARIANTS`), on every cell of the grid; written as a table and
+    ``mpjpe_vs_steps.png``. Empty: no study. N costs ``2^N - 1`` applications of ``A^-1`` per frame."""
 
     def __post_init__(self) -> None:
         if not self.patterns or not set(self.patterns) <= set(_PATTERNS):
@@ -98,6 +103,8 @@ class VirtualConfig:
         for name in ("frames", "frame_stride", "estimate_frames"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if any(n < 1 for n in self.steps) or len(set(self.steps)) < len(self.steps):
+            raise ValueError(f"steps must be distinct SCA step counts >= 1, got {self.steps}")
         for name in ("n_steps", "lagrangian_iterations", "reference_frames"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -157,6 +164,29 @@ def _estimated_lengths(points, P, confidences, person, cfg) -> np.ndarray:
 _OFFICIAL = dict(max_length_error=float("inf"))
 """The paper's protocol is the official code's, which returns ST's bones whatever their lengths."""
 
+ST_VARIANTS = {"code": dict(schedule="length", multiplier_system="current"),
+               "printed": dict(schedule="squared", multiplier_system="initial")}
+"""The two readings of Algorithm 1 (``structri.structural_triangulation``'s options): the official code's
+(lengths interpolated, ``T^(i-1)`` in the multiplier system; the ``ST`` column) and the printed one
+(squared lengths, Eq. 16, and ``T^(0)`` in line 6)."""
+
+
+def _step_study(cfg: VirtualConfig, points, P, lengths, conf, poses, ls_per_frame) -> dict:
+    """Per variant and N: mean and median MPJPE (mm), the fraction of frames worse than LS, MPBLE (mm)."""
+    study = {}
+    for variant, options in ST_VARIANTS.items():
+        rows = {}
+        for n in cfg.steps:
+            result = structural_triangulation(points, P, lengths, confidences=conf, n_steps=n, **options, **_OFFICIAL)
+            per_frame = 1000.0 * np.asarray(mpjpe(result.pose, poses))
+            length_error = np.abs(np.linalg.norm(np.asarray(result.bones), axis=-1) / lengths - 1.0)
+            rows[str(n)] = {"mpjpe_mm": float(np.mean(per_frame)), "median_mpjpe_mm": float(np.median(per_frame)),
+                            "worse_than_ls_fraction": float(np.mean(~(per_frame <= ls_per_frame))),
+                            "diverged_fraction": float(np.mean(~np.all(length_error <= 0.5, axis=-1))),
+                            "mpble_mm": 1000.0 * float(np.nanmean(mpble(result.pose, STRUCTRI17, lengths)))}
+        study[variant] = rows
+    return study
+
 
 def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, lengths, person, rng) -> dict:
     P = np.asarray(projection_matrices(structri_virtual_rig(views, pattern, up_axis=cfg.up_axis)))
@@ -188,6 +218,8 @@ def _cell(cfg: VirtualConfig, pattern: str, views: int, sigma: float, poses, len
         "pib_percent": {k: 100.0 * float(np.mean(pib(r.pose, STRUCTRI17, lengths))) for k, r in results.items()},
         "status_counts_ST": {int(s): int(c) for s, c in zip(*np.unique(np.asarray(results["ST"].status), return_counts=True))},
     }
+    if cfg.steps:
+        out["step_study"] = _step_study(cfg, points, P, lengths, conf, poses, per_frame["LS"])
     k = min(cfg.reference_frames, len(poses))
     gaps, projected_gaps, residuals, ref_err, certified = [], [], [], [], []
     for f in range(k):
@@ -274,7 +306,8 @@ def _run_virtual(cfg: VirtualConfig, out_dir: str | Path, progress: bool, assets
 
 def write_report(results: dict, out_dir: str | Path) -> None:
     """``results.md`` (paper layout: LEM / LS / ST per pattern and camera count, sigma across) and the
-    Fig. 6-style plots ``mpjpe_vs_sigma.png`` and ``mpjpe_vs_views.png``."""
+    Fig. 6-style plots ``mpjpe_vs_sigma.png`` and ``mpjpe_vs_views.png`` (and ``mpjpe_vs_steps.png`` with the N-step
+    study)."""
     out_dir = Path(out_dir)
     cells = results["cells"]
     cfg = results["config"]
@@ -304,6 +337,18 @@ def write_report(results: dict, out_dir: str | Path) -> None:
           "(raw ST); ST's max length residual (mm)",
           lambda c: ("{mpjpe_mm:.2f} ({st_mpjpe_mm_same_frames:.2f}); {median_objective_gap_projected:.2e} "
                      "({median_objective_gap:.2e}); {st_max_length_residual_mm:.3f}").format(**c["reference"]))
+    if cfg.get("steps"):
+        for variant in ST_VARIANTS:
+            lines.extend([f"## N-step study, {variant} variant: mean MPJPE of ST (mm); in brackets, % of frames "
+                          "diverged (some bone off its length by more than half)", "",
+                          "| pattern | C | σ | " + " | ".join(f"N={n}" for n in cfg["steps"]) + " |",
+                          "|---|---|---|" + "---|" * len(cfg["steps"])])
+            for c in cells:
+                rows = c["step_study"][variant]
+                lines.append(f"| {c['pattern']} | {c['views']} | {c['sigma']:g} | " + " | ".join(
+                    f"{_millimetres(rows[str(n)]['mpjpe_mm'])} ({100 * rows[str(n)]['diverged_fraction']:.1f})"
+                    for n in cfg["steps"]) + " |")
+            lines.append("")
     lines.extend(["## Targets", ""] + [f"- {k}: {'met' if v['met'] else 'MISSED in ' + str(v['misses'])}"
                                        for k, v in results["targets"].items()] + [""])
     (out_dir / "results.md").write_text("\n".join(lines))
@@ -326,3 +371,40 @@ def write_report(results: dict, out_dir: str | Path) -> None:
         axes[0][0].legend()
         fig.tight_layout()
         fig.savefig(out_dir / f"{name}.png", dpi=100)
+    if cfg.get("steps"):
+        _plot_step_study(cfg, by_key, mid_views, out_dir / "mpjpe_vs_steps.png")
+
+
+def _millimetres(value: float) -> str:
+    """Two decimals, or a power of ten for a diverged mean."""
+    return f"{value:.2f}" if abs(value) < 1e4 else f"{value:.1e}"
+
+
+def _plot_step_study(cfg: dict, by_key: dict, views: int, path: Path) -> None:
+    """Against the SCA step count N, at C = ``views``: the median MPJPE of ST (top; the mean is dominated by
+    the diverged frames) and the % of frames diverged (bottom), per pattern (columns), variant (line style) and
+    σ (colour)."""
+    fig = Figure(figsize=(5 * len(cfg["patterns"]), 7))
+    axes = fig.subplots(2, len(cfg["patterns"]), squeeze=False, sharex=True)
+    for column, pattern in enumerate(cfg["patterns"]):
+        for sigma, colour in zip(cfg["sigmas"], _COLOURS):
+            for variant, style in zip(ST_VARIANTS, ("-", "--")):
+                rows = by_key[(pattern, views, sigma)]["step_study"][variant]
+                for ax, key, scale in ((axes[0][column], "median_mpjpe_mm", 1.0),
+                                       (axes[1][column], "diverged_fraction", 100.0)):
+                    ax.plot(cfg["steps"], [scale * rows[str(n)][key] for n in cfg["steps"]], style, color=colour,
+                            marker="o", label=f"{variant}, σ = {sigma:g} px")
+        axes[0][column].set_title(f"{pattern} ring, C = {views}")
+        axes[0][column].set_ylabel("median MPJPE (mm)")
+        axes[0][column].set_yscale("log")
+        axes[1][column].set_ylabel("frames diverged (%)")
+        axes[1][column].set_xlabel("SCA steps N")
+        for ax in (axes[0][column], axes[1][column]):
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:grey",
+            "tab:olive", "tab:cyan")
