@@ -18,6 +18,13 @@ from ._clips import list_clips as list_clips
 from ._clips import load_clip as load_clip
 from ._clips import read_clip_sources as read_clip_sources
 from ._clips import save_clip as save_clip
+from ._cmu_expmap import CMU_EXPMAP_FPS as CMU_EXPMAP_FPS
+from ._cmu_expmap import CMU_EXPMAP_NODES as CMU_EXPMAP_NODES
+from ._cmu_expmap import CMU_EXPMAP_OFFSETS as CMU_EXPMAP_OFFSETS
+from ._cmu_expmap import CMU_EXPMAP_PARENTS as CMU_EXPMAP_PARENTS
+from ._cmu_expmap import cmu_expmap_clip as cmu_expmap_clip
+from ._cmu_expmap import cmu_expmap_files as cmu_expmap_files
+from ._cmu_expmap import read_cmu_expmap as read_cmu_expmap
 from ._data_root import find_data_root as find_data_root
 from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS
 from ._detections import Detections as Detections
