@@ -2,7 +2,9 @@
 
 Without ``--train`` it evaluates the models shipped in ``flex/assets`` (or ``--model-dir``); ``--train`` first
 trains them in ``OUT/models/<name>`` (kept in place, resumable: run the same command again after a kill), which
-is how the shipped ones were made. The motion comes from the clips shipped in mocap/assets (no data folder).
+is how the shipped ones were made. The test motion comes from the held-out clips shipped in mocap/assets (no data
+folder), or from ``--clips``: shipped clip names or any CMU motion files of one person (exp-map ``.txt`` of the
+CMU-Mocap benchmark, ``.amc`` beside its ``.asf``, ``.bvh`` in CMU's units), relative paths under ``--data-root``.
 Writes OUT/results.json, results.md, skeletons.png, mpjpe.png, log.jsonl and run.json, replacing OUT's previous
 outputs as a whole. Logic: :mod:`experiments.flex_study`.
 """
@@ -16,6 +18,7 @@ from typing import Annotated
 
 import tyro
 
+import mocap
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
 from flex import SHIPPED_MODELS, load_models
@@ -38,6 +41,8 @@ class Config:
     """Training steps per model with --train (default 1500, --quick 100)."""
     model_dir: Path = SHIPPED_MODELS
     """Folder with one saved model per name (default: the shipped flex/assets)."""
+    data_root: Path | None = None
+    """Folder that relative --clips paths are looked up in (default: $MVMOCAP_DATA_ROOT; not needed otherwise)."""
     experiment: Annotated[ExperimentConfig, tyro.conf.OmitArgPrefixes] = ExperimentConfig()
     """The experiment."""
 
@@ -46,11 +51,25 @@ class Config:
             raise ValueError(f"--model-dir {self.model_dir} is not a folder")
         if self.train_steps is not None and self.train_steps < 1:
             raise ValueError(f"--train-steps must be >= 1, got {self.train_steps}")
+        self.test_clips()  # refuses a clip that is neither shipped nor a file before any work
+
+    def test_clips(self) -> tuple[str, ...]:
+        """``--clips`` with each file as a path that exists (relative ones found under the data folder)."""
+        root = mocap.find_data_root(self.data_root)
+        resolved = []
+        for clip in self.experiment.clips:
+            if clip not in mocap.list_clips() and not Path(clip).is_file() and root is not None:
+                clip = str(root / clip)
+            if clip not in mocap.list_clips() and not Path(clip).is_file():
+                raise ValueError(f"--clips {clip!r} is neither a shipped clip ({', '.join(mocap.list_clips())}) "
+                                 "nor a file" + ("" if root else " (relative paths need --data-root)"))
+            resolved.append(clip)
+        return tuple(resolved)
 
 
 def main(config: Config) -> None:
     default = ExperimentConfig()
-    experiment = dataclasses.replace(config.experiment, **{
+    experiment = dataclasses.replace(config.experiment, clips=config.test_clips(), **{
         name: value for name, value in (QUICK if config.quick else {}).items()
         if getattr(config.experiment, name) == getattr(default, name)})
     with _cli.run_folder(config.out, keep=("models",)) as out, open(out / "log.jsonl", "a") as log_file:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 from typing import Literal, NamedTuple
 
 import jax
@@ -82,7 +83,8 @@ class DataConfig:
     frames: int = 196
     """T (the official code's window)."""
     clips: tuple[str, ...] | None = None
-    """Shipped clip names; None: all (:func:`mocap.list_clips`)."""
+    """Shipped clip names or paths of motion files (:func:`mocap.load_clip_file`); None: all shipped clips
+    (:func:`mocap.list_clips`)."""
     camera_motion: Literal["static", "dynamic"] = "static"
     distance: tuple[float, float] = (3.5, 6.0)
     """Horizontal distance of a camera from the person's mean root (plus the path's extent), uniform."""
@@ -114,9 +116,10 @@ class DataConfig:
             low, high = getattr(self, name)
             if not 0 < low <= high:
                 raise ValueError(f"{name} must be a range 0 < low <= high, got {(low, high)}")
-        unknown = sorted(set(self.clip_names) - set(mocap.list_clips()))
+        unknown = sorted(c for c in set(self.clip_names) - set(mocap.list_clips()) if not Path(c).is_file())
         if not self.clip_names or unknown:
-            raise ValueError(f"clips must be shipped clips ({mocap.list_clips()}), got unknown {unknown} or none")
+            raise ValueError(f"clips must be shipped clips ({mocap.list_clips()}) or motion files, got unknown "
+                             f"{unknown} or none")
 
     @property
     def clip_names(self) -> tuple[str, ...]:
@@ -225,7 +228,7 @@ def root_frame(
 
 @functools.lru_cache(maxsize=None)
 def _clip(name: str) -> mocap.Clip:
-    return mocap.load_clip(name)
+    return mocap.load_clip_file(name)
 
 
 def _window(rng: np.random.Generator, length: int, frames: int) -> np.ndarray:

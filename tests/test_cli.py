@@ -256,3 +256,14 @@ def test_a_run_that_fails_under_its_progress_bar_says_so_on_a_line_of_its_own(da
     assert re.search(r"(^|\n)python -m experiments.shelf_jcsat: error: \S+state.npz cannot be read", result.stderr), \
         result.stderr
 
+
+
+def test_flex_synthetic_refuses_a_clip_that_is_neither_shipped_nor_a_file(capsys):
+    from experiments import flex_synthetic
+
+    with pytest.raises(SystemExit) as exit_info:
+        _cli.parse(flex_synthetic.Config, ["--out", "x", "--clips", "02_01_walk", "no_such_walk.txt"],
+                   prog="flex_synthetic")
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "--clips 'no_such_walk.txt' is neither a shipped clip" in error, error

@@ -113,3 +113,22 @@ def test_a_file_is_a_clip_that_scene_synthesis_takes(walk):
     scene = mocap.synthesise_scene(jax.random.key(0), mocap.shelf_cameras(), num_people=2, num_frames=40,
                                    clips=[clip, mocap.load_clip("02_01_walk")])
     assert scene.num_people == 2 and scene.num_frames == 40
+
+
+def test_load_clip_file_reads_every_cmu_format_and_refuses_the_rest(data_root, tmp_path):
+    shipped = mocap.load_clip_file("02_01_walk")
+    np.testing.assert_array_equal(shipped.body25, mocap.load_clip("02_01_walk").body25)
+    amc = mocap.load_clip_file("cmu_mocap/02_01.amc", data_root)  # the shipped clip's source: the same motion
+    np.testing.assert_allclose(amc.structri17, shipped.structri17, atol=6e-4)  # shipped: rounded to 1 mm
+    expmap = mocap.load_clip_file("cmu_expmap/test/walking/walking_1.txt", data_root)
+    assert expmap.name == "test/walking/walking_1" and expmap.fps == 30.0
+    bvh = mocap.load_clip_file(data_root / "cmu_mocap" / "18_01.bvh")
+    height = np.ptp(bvh.structri17[0, 0, :, 2])
+    assert 1.3 < height < 2.0
+    with pytest.raises(ValueError, match="60_03_scaled.bvh: its rest pose is 0.07 m tall"):
+        mocap.load_clip_file("cmu_mocap/60_03_scaled.bvh", data_root)  # the salsa files use other units
+    with pytest.raises(ValueError, match="'nope' is neither a shipped clip"):
+        mocap.load_clip_file("nope", data_root)
+    (tmp_path / "x.csv").write_text("1,2\n")
+    with pytest.raises(ValueError, match="x.csv: not a motion file this reads"):
+        mocap.load_clip_file(tmp_path / "x.csv")

@@ -16,6 +16,8 @@ from flex import (
 # The shapes of tests/test_flex_model.py's batch, so that a joint run compiles the geometry kernels once.
 CONFIG = DataConfig(views=4, frames=16)
 DYNAMIC = DataConfig(views=4, frames=16, camera_motion="dynamic")
+CONFIG_SHAPE = (4, 16, 17, 2)
+"""``points_2d`` of one CONFIG sample: views, frames, STRUCTRI17 joints, pixels."""
 
 
 @pytest.fixture(scope="module")
@@ -184,3 +186,13 @@ def test_sign_continuous_keeps_the_rotations_and_removes_the_sign_jumps():
     fixed = np.asarray(sign_continuous(flipped))
     assert np.all(np.sum(fixed[1:] * fixed[:-1], axis=-1) > 0.9)
     assert_allclose(np.abs(np.sum(fixed * q, axis=-1)), 1.0, atol=1e-12)  # each +-q
+
+
+def test_a_motion_file_is_a_clip_of_the_samples(data_root):
+    """Any CMU motion file (here an exp-map file of the benchmark's test split) feeds the samples as a shipped clip
+    does; a name that is neither is refused before any sampling."""
+    path = str(data_root / "cmu_expmap" / "test" / "walking" / "walking_1.txt")
+    sample = make_sample(jax.random.key(0), DataConfig(views=4, frames=16, clips=(path,)))
+    assert sample.points_2d.shape == CONFIG_SHAPE and np.isfinite(np.asarray(sample.joints)).all()
+    with pytest.raises(ValueError, match=r"shipped clips .* or motion files, got unknown \['no_such_clip'\]"):
+        DataConfig(clips=("no_such_clip",))

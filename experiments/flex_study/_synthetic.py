@@ -57,7 +57,9 @@ class ExperimentConfig:
     frames: int = 64
     """Frames per test sample."""
     clips: tuple[str, ...] = TEST_CLIPS
-    """Clips the test samples are drawn from (held out of training)."""
+    """Clips the test samples are drawn from (held out of training): shipped clip names or paths of motion files
+    of one person (:func:`mocap.load_clip_file`: CMU exp-map ``.txt``, ``.amc`` beside its ``.asf``, ``.bvh`` in
+    CMU's units)."""
     perturbations: tuple[float, ...] = (0.03, 0.04)
     """Relative standard deviations of the perturbed extrinsics (Table 1: 3 % and 4 %)."""
     n_steps: int = 3
