@@ -10,6 +10,7 @@ from ._bvh import CMU_METRES_PER_UNIT as CMU_METRES_PER_UNIT
 from ._bvh import SALSA_METRES_PER_UNIT as SALSA_METRES_PER_UNIT
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
+from ._clip_files import load_clip_file as load_clip_file
 from ._clips import ASSETS as ASSETS
 from ._clips import CLIP_SOURCES as CLIP_SOURCES
 from ._clips import Clip as Clip
@@ -24,7 +25,6 @@ from ._cmu_expmap import CMU_EXPMAP_OFFSETS as CMU_EXPMAP_OFFSETS
 from ._cmu_expmap import CMU_EXPMAP_PARENTS as CMU_EXPMAP_PARENTS
 from ._cmu_expmap import cmu_expmap_clip as cmu_expmap_clip
 from ._cmu_expmap import cmu_expmap_files as cmu_expmap_files
-from ._cmu_expmap import load_clip_file as load_clip_file
 from ._cmu_expmap import read_cmu_expmap as read_cmu_expmap
 from ._data_root import find_data_root as find_data_root
 from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS

@@ -24,14 +24,13 @@ import numpy as np
 
 from geometry import axis_angle_to_matrix
 
-from ._asf_amc import read_asf_amc
-from ._bvh import CMU_METRES_PER_UNIT, read_bvh
-from ._clips import Clip, clip_from_motions, list_clips, load_clip
+from ._bvh import CMU_METRES_PER_UNIT
+from ._clips import Clip, clip_from_motions
 from ._data_root import find_data_root
 from ._motion import Motion, build_motion, malformed
 
 __all__ = ["CMU_EXPMAP_FPS", "CMU_EXPMAP_NODES", "CMU_EXPMAP_OFFSETS", "CMU_EXPMAP_PARENTS", "cmu_expmap_clip",
-           "cmu_expmap_files", "load_clip_file", "read_cmu_expmap"]
+           "cmu_expmap_files", "read_cmu_expmap"]
 
 CMU_EXPMAP_FPS = 120.0
 """Frames per second of the files (a walk advances about 1 cm per line)."""
@@ -109,48 +108,6 @@ def cmu_expmap_files(data_root: str | os.PathLike | None = None, split: str = "t
     if not files:
         raise ValueError(f"{root / 'cmu_expmap' / split} holds no <action>/<file>.txt")
     return files
-
-
-_STANDING_HEIGHT_M = (1.0, 2.3)
-"""Range of a person's rest-pose height (metres) a clip file must give, so a BVH in other units is refused."""
-
-
-def load_clip_file(spec: str | os.PathLike, data_root: str | os.PathLike | None = None, fps: float = 30.0) -> Clip:
-    """A clip from a shipped clip name (:func:`load_clip`) or from a motion file of one person: a CMU exp-map
-    ``.txt`` (:func:`read_cmu_expmap`), an ``.amc`` beside its subject's ``.asf`` (``02_01.amc`` -> ``02.asf``,
-    :func:`read_asf_amc`) or a ``.bvh`` in CMU's units (:func:`read_bvh`, ``CMU_METRES_PER_UNIT``). A relative path
-    is looked up under ``data_root`` first. Files are resampled to ``fps``; a person whose rest pose is not 1.0-2.3 m
-    tall (a BVH in other units) is refused, as is a name that is neither a shipped clip nor such a file."""
-    spec = str(spec)
-    if spec in list_clips():
-        return load_clip(spec)
-    path = Path(spec)
-    if not path.is_absolute() and data_root is not None and (Path(data_root) / path).is_file():
-        path = Path(data_root) / path
-    if not path.is_file():
-        raise ValueError(f"clip {spec!r} is neither a shipped clip ({', '.join(list_clips())}) nor a file")
-    suffix = path.suffix.lower()
-    if suffix == ".txt":
-        return cmu_expmap_clip(path, fps)
-    if suffix == ".amc":
-        asf = path.with_name(path.stem.split("_")[0] + ".asf")
-        if not asf.is_file():
-            raise ValueError(f"{path}: no skeleton file {asf.name} beside it")
-        motion = read_asf_amc(asf, path, name=path.stem)
-    elif suffix == ".bvh":
-        motion = read_bvh(path, CMU_METRES_PER_UNIT, name=path.stem)
-    else:
-        raise ValueError(f"{path}: not a motion file this reads (.txt exp-map, .amc + .asf, .bvh)")
-    rest = np.zeros_like(motion.offsets)  # the rest pose in the source's y-up frame: offsets summed down the tree
-    for node, parent in enumerate(motion.parents):
-        if parent >= 0:
-            rest[node] = rest[parent] + motion.offsets[node]
-    height = float(np.ptp(rest[:, 1]))
-    if not _STANDING_HEIGHT_M[0] <= height <= _STANDING_HEIGHT_M[1]:
-        raise ValueError(f"{path}: its rest pose is {height:.2f} m tall; a BVH must be in CMU's units "
-                         f"(1 unit = 1/0.45 inch)")
-    return clip_from_motions(path.stem, [motion], fps=fps, description=f"motion file {path.name}",
-                             sources=(path.name,))
 
 
 def cmu_expmap_clip(path: str | os.PathLike, fps: float = 30.0) -> Clip:
