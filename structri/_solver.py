@@ -351,11 +351,12 @@ def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[
         if multiplier_system == "current":
             columns = _apply_sca_operator(tree, D_inv, lambdas, columns)  # T^(step-1) diag(b) D31
 
-            def update(lam, columns=columns):  # T^(step-1) diag(b) D31 lam
-                return jnp.sum(columns * lam[None, None], axis=2)
-        else:
-            def update(lam, columns=columns, lambdas=tuple(lambdas)):
-                return _apply_sca_operator(tree, D_inv, list(lambdas), jnp.sum(columns * lam[None, None], axis=2))
+        def update(lam):  # T^(step-1) diag(b) D31 lam
+            direction = jnp.sum(columns * lam[None, None], axis=2)
+            if multiplier_system == "current":
+                return direction
+            return _apply_sca_operator(tree, D_inv, lambdas, direction)  # columns hold A^-1 diag(b) D31 here
+
         system = jnp.sum(b[:, :, None] * columns, axis=1)
         system = 0.5 * (system + jnp.swapaxes(system, 0, 1))
         if step == 1:  # one elimination for both right-hand sides
