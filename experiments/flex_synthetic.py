@@ -56,15 +56,10 @@ class Config:
     def test_clips(self) -> tuple[str, ...]:
         """``--clips`` with each file as a path that exists (relative ones found under the data folder)."""
         root = mocap.find_data_root(self.data_root)
-        resolved = []
-        for clip in self.experiment.clips:
-            if clip not in mocap.list_clips() and not Path(clip).is_file() and root is not None:
-                clip = str(root / clip)
-            if clip not in mocap.list_clips() and not Path(clip).is_file():
-                raise ValueError(f"--clips {clip!r} is neither a shipped clip ({', '.join(mocap.list_clips())}) "
-                                 "nor a file" + ("" if root else " (relative paths need --data-root)"))
-            resolved.append(clip)
-        return tuple(resolved)
+        try:
+            return tuple(mocap.resolve_clip(clip, root) for clip in self.experiment.clips)
+        except ValueError as error:
+            raise ValueError(f"--clips {error}" + ("" if root else " (relative paths need --data-root)")) from None
 
 
 def main(config: Config) -> None:

@@ -11,6 +11,7 @@ from ._bvh import SALSA_METRES_PER_UNIT as SALSA_METRES_PER_UNIT
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
 from ._clip_files import load_clip_file as load_clip_file
+from ._clip_files import resolve_clip as resolve_clip
 from ._clips import ASSETS as ASSETS
 from ._clips import CLIP_SOURCES as CLIP_SOURCES
 from ._clips import Clip as Clip
