@@ -1,4 +1,5 @@
-"""The dynamics data: synthetic videos of the shipped CMU clips, cut into person tracks of crops and ground truth.
+"""The dynamics data: synthetic videos of CMU clips (shipped, or motion files), cut into person tracks of crops and
+ground truth.
 
 Each clip is retargeted to the body model with random shapes (:func:`mocap.retarget_clip`) and rendered
 ``renders`` times with a slowly moving camera (:func:`mocap.synthesise_video`). Every rendered video gives
@@ -52,6 +53,8 @@ class DataConfig:
     """What a set of tracks is made of (written into every run's ``config.json``)."""
 
     clips: tuple[str, ...] = TRAIN_CLIPS
+    """Shipped clip names, motion files of one person, or the files of two people captured together joined by ``+``
+    (:func:`mocap.load_clip_file`; relative paths from the working directory)."""
     renders: int = 2
     """Videos per clip, each with its own camera path and body shapes."""
     augmented_epochs: int = 4
@@ -70,9 +73,10 @@ class DataConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        unknown = sorted(set(self.clips) - set(mocap.list_clips()))
-        if unknown:
-            raise ValueError(f"unknown clips {unknown}; shipped clips are {mocap.list_clips()}")
+        for clip in self.clips:  # clip_files refuses what is neither shipped nor files; shipped clips hold 1-2 people
+            people = len(mocap.clip_files(clip))
+            if people > 2:
+                raise ValueError(f"clip {clip!r} joins {people} people; the models take one or two")
         for name in ("renders", "augmented_epochs", "crop_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -141,16 +145,21 @@ def crop_square(image: UInt8[np.ndarray, "H W 3"], box: Float[np.ndarray, "4"], 
                           borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
 
 
-def _cache_file(config: DataConfig, cache_dir: Path) -> Path:
+def _cache_file(config: DataConfig, clips: list[mocap.Clip], cache_dir: Path) -> Path:
     name = json.dumps(training.to_jsonable(config), sort_keys=True)
+    # A motion file is named by its path only: its joints join the key, so that a render of another file at that
+    # path (or of an .amc beside another .asf) is never reused. Shipped clips keep the key they had.
+    name += "".join(hashlib.sha1(clip.body25.tobytes() + clip.structri17.tobytes()).hexdigest()
+                    for spec, clip in zip(config.clips, clips) if mocap.clip_files(spec))
     return cache_dir / f"dynamics_frames_{hashlib.sha1(name.encode()).hexdigest()[:16]}.npz"
 
 
 def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str | Path | None = None,
                  progress: bool = True) -> Frames:
     """Render, augment and crop every clip of ``config`` (module docstring); cached in ``cache_dir`` when given
-    (a file named by a hash of the config, written atomically)."""
-    path = None if cache_dir is None else _cache_file(config, Path(cache_dir))
+    (a file named by a hash of the config and of its motion files' joints, written atomically)."""
+    clips = [mocap.load_clip_file(spec) for spec in config.clips]
+    path = None if cache_dir is None else _cache_file(config, clips, Path(cache_dir))
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return Frames(**{name: stored[name] for name in Frames._fields})
@@ -159,7 +168,7 @@ def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str |
     variant = track = 0
     jobs = [(c, r) for c in range(len(config.clips)) for r in range(config.renders)]
     for clip_index, _ in tqdm.tqdm(jobs, disable=not progress, desc="render videos"):
-        clip = mocap.load_clip(config.clips[clip_index])
+        clip = clips[clip_index]
         betas = rng.normal(0.0, config.shape_std, (clip.num_people, model.num_shapes))
         video = mocap.synthesise_video(mocap.retarget_clip(clip, model, betas), model, config.video, rng)
         for epoch in range(config.augmented_epochs):

@@ -187,7 +187,14 @@ def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, pri
         lambda x: jax.lax.slice_in_dim(x, start, stop, axis=features.ndim - 2), tree)
     frozen = jax.lax.stop_gradient
     past = frames(rows, 0, T)
-    observed = jax.tree.map(frozen, model.observe(body, features[..., :T, :], past.boxes, past.K))
+    observed = model.observe(body, features[..., :T, :], past.boxes, past.K)
+    # f_movie and f_HMR are frozen in this stage (Sect. 4.2.2): stop the gradient on their outputs, the
+    # conditioning Phi^, Theta^ and gamma^, only. Gamma^ = f_JE(J^) stays on the gradient path: f_JE trains here
+    # (Table C.3 gives it a prediction-stage rate), and it is PHD+T's only path, as its rollout stays in feature
+    # space (Sect. 4.2.1 re-encodes the predicted joints; the shipped model's predictions would change). Stopping
+    # the whole observation left f_JE at its initialisation (issue 26).
+    observed = observed._replace(temporal=frozen(observed.temporal), params=jax.tree.map(frozen, observed.params),
+                                 root=frozen(observed.root))
     # The conditioning networks' estimate of the future frames: the targets of lambda_temp and lambda_transl.
     reference = jax.tree.map(frozen, model.observe(body, features, rows.boxes, rows.K))
     rollout = model.rollout(body, observed, H)

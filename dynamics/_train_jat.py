@@ -11,10 +11,12 @@ as PHD+T's (:mod:`dynamics._train`), with the prior trained alongside:
 
 JAT trains on single tracks (``N = 1``); MPJAT's batches are two-person scenes or single-person tracks, drawn
 with probability ``two_person_fraction`` per step (two shapes, two compilations, no padding). :func:`train_all`
-runs the four models of the evaluation: JAT; JAT without the Joint-Aware Bias (Table 5.5), which shares JAT's
-conditioning networks and trains its own ``f_AR``; MPJAT, initialised from JAT with the agent-aware
-sub-modules duplicated from their single-person counterparts (``docs/dynamics.md``); and MPJAT without the
-interpenetration loss (Table 5.9).
+runs the four models of the evaluation: JAT; JAT without the Joint-Aware Bias (Table 5.5), which starts where
+JAT's ``ar/`` stage starts (JAT's trained conditioning networks, frozen in that stage, and JAT's initial ``f_AR``,
+``f_JE`` and ``f_transl``) and trains its own for JAT's steps, so the bias is the only difference; MPJAT,
+initialised from JAT with the agent-aware sub-modules duplicated from their single-person counterparts
+(``docs/dynamics.md``); and MPJAT without the interpenetration loss (Table 5.9), MPJAT's run from the same start
+with that loss's weight at 0.
 """
 
 from __future__ import annotations
@@ -44,6 +46,12 @@ __all__ = ["TRANSFORMERS", "TransformerTrainConfig", "as_multi_person", "load_tr
 
 TRANSFORMERS: tuple[str, ...] = ("JAT", "JAT w/o bias", "MPJAT", "MPJAT w/o P")
 """The trained transformers of :func:`train_all`, as the tables name them."""
+
+_CONDITIONING = nnx.All(nnx.Param, nnx.Any(*(nnx.PathContains(p) for p in ("movie_encoder", "movie", "hmr"))))
+"""The ``movie/`` stage's trained parts: f_movie and f_HMR."""
+_AR_PARTS = nnx.All(nnx.Param, nnx.Any(*(nnx.PathContains(p) for p in (
+    "ar_encoder", "ar", "ar_output", "bias_self", "bias_other", "joint_encoder", "translation"))))
+"""The ``ar/`` stage's trained parts: f_AR, the Joint-Aware Bias encoders, f_JE and f_transl."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,13 +188,10 @@ def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body:
     if init is not None:
         nnx.update(model, nnx.state(init, nnx.Param))
     if config.movie is not None:
-        movie_parts = nnx.All(nnx.Param, nnx.Any(*(nnx.PathContains(p) for p in ("movie_encoder", "movie", "hmr"))))
-        model = _run_stage("movie", config, config.movie, workdir, model, movie_parts, _scene_movie_objective,
+        model = _run_stage("movie", config, config.movie, workdir, model, _CONDITIONING, _scene_movie_objective,
                            sampler(config.movie), validate, body, resume=resume, log=log, progress=progress)
-    ar_parts = nnx.All(nnx.Param, nnx.Any(*(nnx.PathContains(p) for p in (
-        "ar_encoder", "ar", "ar_output", "bias_self", "bias_other", "joint_encoder", "translation"))))
-    model = _run_stage("ar", config, config.ar, workdir, model, ar_parts, _ar_objective, sampler(config.ar), validate,
-                       body, resume=resume, log=log, progress=progress)
+    model = _run_stage("ar", config, config.ar, workdir, model, _AR_PARTS, _ar_objective, sampler(config.ar),
+                       validate, body, resume=resume, log=log, progress=progress)
     training.save_model(workdir / "model", config.model, nnx.state(model))
     return model
 
@@ -203,6 +208,19 @@ def load_transformers(path: str | Path) -> dict[str, JAT]:
 
 def _folder(name: str) -> str:
     return name.lower().replace(" w/o ", "_without_").replace(" ", "_")
+
+
+def _ar_stage_start(trained: JAT, config: JATConfig, seed: int) -> JAT:
+    """A ``config`` model (JAT less what an ablation removes) as the JAT ``trained`` was when its ``ar/`` stage
+    started: its conditioning networks (frozen in that stage) and the initial parameters :func:`train_transformer`
+    gave its other parts from ``seed``."""
+    start = JAT(trained.config, rngs=nnx.Rngs(seed))
+    nnx.update(start, nnx.state(trained, _CONDITIONING))
+    model = JAT(config, rngs=nnx.Rngs(seed))
+    kept = {path for path, _ in nnx.to_flat_state(nnx.state(model, nnx.Param))}
+    nnx.update(model, nnx.from_flat_state({path: variable for path, variable
+                                           in nnx.to_flat_state(nnx.state(start, nnx.Param)) if path in kept}))
+    return model
 
 
 def train_all(config: TransformerTrainConfig, workdir: str | Path, body: geometry.BodyModel,
@@ -229,9 +247,8 @@ def train_all(config: TransformerTrainConfig, workdir: str | Path, body: geometr
             start = models[parent]
             if run_config.model.agent_aware:
                 init = as_multi_person(start, run_config.model)
-            else:
-                init = JAT(run_config.model, rngs=nnx.Rngs(run_config.seed))
-                nnx.update(init, nnx.state(start, nnx.All(nnx.Param, nnx.Not(nnx.PathContains("bias_self")))))
+            else:  # an ablation of JAT: JAT's start, not the trained JAT, whose f_AR would train twice as long
+                init = _ar_stage_start(start, run_config.model, config.seed)
         elif hmr_init is not None:
             init = JAT(run_config.model, rngs=nnx.Rngs(run_config.seed))
             nnx.update(init.hmr, nnx.state(hmr_init))

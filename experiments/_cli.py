@@ -14,21 +14,25 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
+import os
 import re
 import sys
 import traceback
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn, TypeVar
 
 import tyro
+from tqdm import tqdm
 
 import geometry
+import mocap
 
 from ._run_folder import run_folder as run_folder
 
-__all__ = ["parse", "run", "run_folder"]
+__all__ = ["clips_option", "parse", "run", "run_folder", "stages"]
 
 C = TypeVar("C")
 
@@ -48,7 +52,10 @@ def _one_line(tyro_message: str) -> str:
             current.append(text)
     sections.append(current)
     said = []
-    for header, *rest in (section for section in sections if section):
+    sections = [section for section in sections if section]
+    if not tyro_message.lstrip().startswith("╭"):  # the plain layout puts the box's title ("Value error") first
+        sections = sections[1:]
+    for header, *rest in sections:
         if header.startswith("For full helptext"):
             continue
         if header.startswith("Unrecognized options"):  # "...:" alone, or with the one option on its line
@@ -63,6 +70,55 @@ def _one_line(tyro_message: str) -> str:
 def _fail(prog: str, message: str) -> NoReturn:
     print(f"{prog}: error: {message}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def clips_option(clips: Sequence[str], data_root: str | os.PathLike | None) -> tuple[str, ...]:
+    """A ``--clips`` option's clips with every file as a path that exists (:func:`mocap.resolve_clip`; relative ones
+    found under the data folder, :func:`mocap.find_data_root`); a ValueError naming the option otherwise."""
+    root = mocap.find_data_root(data_root)
+    try:
+        return tuple(mocap.resolve_clip(clip, root) for clip in clips)
+    except ValueError as error:
+        raise ValueError(f"--clips {error}" + ("" if root else " (relative paths need --data-root)")) from None
+
+
+@contextlib.contextmanager
+def stages(out: Path, desc: str, names: Sequence[str]
+           ) -> Iterator[tuple[Callable[[dict], None], Callable[[str], None]]]:
+    """A staged run's JSON-lines log and progress bar: yields ``log(event)``, which appends the event to
+    ``out/log.jsonl``, and ``progress(stage)``, which completes the previous stage on a bar over ``names`` and shows
+    ``stage``; the last stage completes when the block does. The bar is closed on an error too, so that the one-line
+    error starts a line of its own."""
+
+    def log(event: dict) -> None:
+        with (out / "log.jsonl").open("a") as stream:
+            stream.write(json.dumps(event) + "\n")
+
+    with tqdm(total=len(names), desc=desc, unit="stage") as bar:
+        started = []
+
+        def progress(stage: str) -> None:
+            if started:  # the running stage is done
+                bar.update(1)
+            started.append(stage)
+            bar.set_postfix_str(stage)
+
+        yield log, progress
+        bar.update(1)
+
+
+@contextlib.contextmanager
+def _wide_terminal() -> Iterator[None]:
+    """``COLUMNS`` set wide for the block (tyro and rich read it), then restored."""
+    saved = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100000"
+    try:
+        yield
+    finally:
+        if saved is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = saved
 
 
 def _rename_aliases(argv: Sequence[str], aliases: Mapping[str, str]) -> list[str]:
@@ -84,13 +140,16 @@ def parse(config_type: type[C], argv: Sequence[str], *, prog: str, description: 
     exits 2 with one line ``prog: error: ...`` on stderr (``debug``: tyro's full message and traceback too).
     ``aliases``: old option names still accepted, mapped to their current names."""
     description = f"{description or ''}\n\n{DEBUG_HELP}".strip()
+    args = _rename_aliases(argv, aliases or {})
     captured = io.StringIO()
     try:
-        with contextlib.redirect_stderr(captured):
-            config = tyro.cli(config_type, args=_rename_aliases(argv, aliases or {}), prog=prog,
-                              description=description)
+        # tyro boxes its messages at the terminal's width and would break a long path inside an error in two: a
+        # wide terminal keeps every line of the box whole for _one_line.
+        with contextlib.redirect_stderr(captured), contextlib.redirect_stdout(io.StringIO()), _wide_terminal():
+            config = tyro.cli(config_type, args=args, prog=prog, description=description)
     except SystemExit as exit_:
-        if exit_.code in (0, None):
+        if exit_.code in (0, None):  # --help: shown again, at the terminal's own width
+            tyro.cli(config_type, args=args, prog=prog, description=description)
             raise
         if debug:
             sys.stderr.write(captured.getvalue())

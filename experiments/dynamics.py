@@ -1,6 +1,12 @@
 """PHD+T, JAT, MPJAT (with the ablations of Tables 5.5 and 5.9) and ZeroMotion on held-out synthetic videos
 (thesis Sect. 5.3: Tables 5.2-5.11's metrics, Fig. 5.1, and an interpenetration measure).
 
+The test videos are rendered from the held-out clips shipped in mocap/assets (no data folder), or from ``--clips``:
+shipped clip names, CMU motion files of one person (exp-map ``.txt`` of the CMU-Mocap benchmark, ``.amc`` beside its
+``.asf``, ``.bvh`` in CMU's units) or the files of two people captured together joined by ``+`` (a salsa pair:
+``cmu_mocap/60_03_scaled.bvh+cmu_mocap/61_03_scaled.bvh``), relative paths under ``--data-root``. A one-person clip
+gives single-person samples, a pair two-person ones.
+
 Without ``--train`` it evaluates the models shipped in ``dynamics/assets/phdt`` and ``dynamics/assets/transformers``;
 ``--train`` first trains a backbone and PHD+T in ``OUT/train`` (three resumable stages), then the four
 transformers on that backbone's features in ``OUT/train/transformers`` (two resumable stages each): run the same
@@ -55,6 +61,13 @@ class Config:
     body_model: Path | None = None
     """Official SMPL model file (.pkl or .npz) instead of the generated stand-in body; the shipped models were
     trained on the stand-in, so use it with --train."""
+    data_root: Path | None = None
+    """Folder that relative --clips paths are looked up in (default: $MVMOCAP_DATA_ROOT; not needed otherwise)."""
+    clips: tuple[str, ...] = EvalConfig().data.clips
+    """Test clips (default: the held-out shipped ones): shipped clip names, CMU motion files of one person (exp-map
+    .txt, .amc beside its .asf, .bvh in CMU's units), or the files of two people captured together joined by '+'
+    (cmu_mocap/60_03_scaled.bvh+cmu_mocap/61_03_scaled.bvh, the salsa pair's files); relative paths under
+    --data-root. One-person clips give the single-person results, pairs the two-person ones."""
     seed: int = 0
     """Training seed (with --train or --train-transformers)."""
     progress: bool = True
@@ -68,12 +81,23 @@ class Config:
                 raise ValueError(f"{option} {folder} is not a folder")
         if self.body_model is not None and not self.body_model.is_file():
             raise ValueError(f"--body-model {self.body_model} is not a file")
+        if not self.clips:
+            raise ValueError("--clips names no clip")
+        self.evaluation()  # refuses a clip that is neither shipped nor files before any work
+
+    def evaluation(self) -> EvalConfig:
+        """The held-out evaluation on --clips (each file as a path that exists, relative ones found under the data
+        folder), with --quick's windows."""
+        clips = _cli.clips_option(self.clips, self.data_root)
+        default = EvalConfig()
+        return dataclasses.replace(default, data=dataclasses.replace(default.data, clips=clips),
+                                   **(QUICK_EVAL if self.quick else {}))
 
 
 def main(config: Config) -> None:
     body = (geometry.load_body_model(config.body_model, num_shapes=3) if config.body_model
             else geometry.stand_in_body_model())
-    evaluation = dataclasses.replace(EvalConfig(), **(QUICK_EVAL if config.quick else {}))
+    evaluation = config.evaluation()
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out, open(out / "log.jsonl", "a") as log_file:
         def log(record: dict) -> None:

@@ -18,7 +18,6 @@ from typing import Annotated
 
 import tyro
 
-import mocap
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
 from flex import SHIPPED_MODELS, load_models
@@ -55,11 +54,7 @@ class Config:
 
     def test_clips(self) -> tuple[str, ...]:
         """``--clips`` with each file as a path that exists (relative ones found under the data folder)."""
-        root = mocap.find_data_root(self.data_root)
-        try:
-            return tuple(mocap.resolve_clip(clip, root) for clip in self.experiment.clips)
-        except ValueError as error:
-            raise ValueError(f"--clips {error}" + ("" if root else " (relative paths need --data-root)")) from None
+        return _cli.clips_option(self.experiment.clips, self.data_root)
 
 
 def main(config: Config) -> None:

@@ -78,7 +78,6 @@ def draw_frame(
     n_cols = 3
     n_rows = -(-(n_views + 1) // n_cols)
     fig = Figure(figsize=(6.0 * n_cols, 4.8 * n_rows), dpi=80)
-    person_colours = colormaps["tab10"]
     joint_colours = colormaps["hsv"]
     sizes = np.asarray(rig.image_size)
     truth_px = np.asarray(geometry.project_to_views(rig, truth)) if len(truth) else np.zeros((n_views, 0, 1, 2))
@@ -97,14 +96,14 @@ def draw_frame(
             pairs = _person_limbs(det, a, b) if known else _paf_limbs(det, k, a, b)
             for i, m in pairs:
                 seg = np.stack([det.joints[a][i, :2], det.joints[b][m, :2]])
-                colour = person_colours(det.person_ids[a][i] % 10) if known else joint_colours(k / len(BODY25_PAF_PAIRS))
+                colour = mocap.person_colour(det.person_ids[a][i]) if known else joint_colours(k / len(BODY25_PAF_PAIRS))
                 ax.plot(seg[:, 0], seg[:, 1], color=colour, lw=1.6, alpha=0.8, zorder=2)
         for j, cand in enumerate(det.joints):
             if not len(cand):
                 continue
             if known:
                 ids = det.person_ids[j]
-                colours = [person_colours(i % 10) if i >= 0 else (0.2, 0.2, 0.2, 1.0) for i in ids]
+                colours = [mocap.person_colour(i) if i >= 0 else (0.2, 0.2, 0.2, 1.0) for i in ids]
                 markers = np.where(ids >= 0, "o", "x")
             else:
                 colours = [joint_colours(j / BODY25.num_joints)] * len(cand)
@@ -131,7 +130,7 @@ def draw_frame(
     ax.scatter(*centres.T, color="black", marker="^", s=25)
     for p, person in enumerate(truth):
         for parent, child in truth_skeleton.bones:
-            ax.plot(*person[[parent, child]].T, color=person_colours(p % 10), lw=2)
+            ax.plot(*person[[parent, child]].T, color=mocap.person_colour(p), lw=2)
     if area is not None:
         x0, y0, x1, y1 = area
         ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], [0, 0, 0, 0, 0], color="0.6", lw=0.8)

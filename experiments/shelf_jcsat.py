@@ -19,17 +19,14 @@ Logic: :func:`jcsat_study.run_shelf_experiment`, :func:`jcsat.train`.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Literal
-
-from tqdm import tqdm
 
 import jcsat
 import mocap
 from experiments import _cli, jcsat_study
 
-_STAGES = ("data", "geometric", "jcsat", "evaluation", "plot")
+_STAGES = ("data", "method", "evaluation", "plot")
 
 ALIASES = {"--structural-steps": "--baseline.geometric.structural-steps",
            "--max-bone-deviation": "--baseline.geometric.max-bone-deviation",
@@ -58,6 +55,10 @@ class Config(jcsat_study.ShelfExperimentConfig):
     """With --train: optimisation steps (default: the --config run's)."""
     data_workers: int = 1
     """With --train: processes that build the synthetic scenes when they are not cached."""
+    train_expmap: bool = False
+    """With --train: the scenes also draw people from the CMU-Mocap benchmark's train split (DATA/cmu_expmap/train,
+    8 actions, in the data folder of --data-root) beside the --config run's clips; its test split never enters
+    training."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -71,11 +72,25 @@ class Config(jcsat_study.ShelfExperimentConfig):
             raise ValueError(f"--steps must be >= 1, got {self.steps}")
         if self.data_workers < 1:
             raise ValueError(f"--data-workers must be >= 1, got {self.data_workers}")
+        if self.train_expmap and not self.train:
+            raise ValueError("--train-expmap needs --train")
+        if self.train_expmap:
+            self.expmap_clips()  # a missing cmu_expmap folder is refused before any work
         mocap.find_data_root(self.data_root, "shelf")
+
+
+    def expmap_clips(self) -> tuple[str, ...]:
+        """The CMU-Mocap benchmark's train files (absolute paths, so the dataset cache key does not depend on the
+        working folder)."""
+        return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "train"))
 
 
 def _train(config: Config) -> Path:
     train_config = dataclasses.replace(jcsat.TRAIN_CONFIGS[config.config], seed=config.seed)
+    if config.train_expmap:
+        data = train_config.data
+        train_config = dataclasses.replace(train_config, data=dataclasses.replace(
+            data, clips=data.clips + config.expmap_clips()))
     if config.quick:
         train_config = dataclasses.replace(train_config, steps=300, warmup_steps=30, checkpoint_interval=100,
                                            validation_interval=100,
@@ -100,23 +115,10 @@ def experiment_config(config: Config, model: Path | str | None) -> jcsat_study.S
 def main(config: Config) -> None:
     jcsat_study.check_input_files(experiment_config(config, None if config.train else config.model))  # before training
     experiment = experiment_config(config, _train(config) if config.train else config.model)
-    with _cli.run_folder(config.out, keep=("train",)) as out:
-        log_path = out / "log.jsonl"
-        stages = [s for s in _STAGES if (s != "plot" or experiment.plot)
-                  and (s != "jcsat" or experiment.method == "jcsat")]
-        def log(event: dict) -> None:
-            with log_path.open("a") as stream:
-                stream.write(json.dumps(event) + "\n")
-
-        # Closed on an error too, so that the one-line error starts a line of its own.
-        with tqdm(total=len(stages), desc="shelf_jcsat", unit="stage") as bar:
-            def progress(stage: str) -> None:
-                if stage != "data":
-                    bar.update(1)
-                bar.set_postfix_str(stage)
-
-            result = jcsat_study.run_shelf_experiment(experiment, out, log=log, progress=progress)
-            bar.update(1)
+    stages = [s for s in _STAGES if s != "plot" or experiment.plot]
+    with (_cli.run_folder(config.out, keep=("train",)) as out,
+          _cli.stages(out, "shelf_jcsat", stages) as (log, progress)):
+        result = jcsat_study.run_shelf_experiment(experiment, out, log=log, progress=progress)
     print(result.table)
     print(f"outputs in {config.out}/; total {result.metrics['total_seconds']:.1f} s")
 

@@ -226,11 +226,6 @@ def root_frame(
     return jnp.concatenate([(root_pixels - centre) / scale[..., None] * d[..., None], d[..., None]], axis=-1)
 
 
-@functools.lru_cache(maxsize=None)
-def _clip(name: str) -> mocap.Clip:
-    return mocap.load_clip_file(name)
-
-
 def _window(rng: np.random.Generator, length: int, frames: int) -> np.ndarray:
     """``frames`` consecutive clip frames from a random start; a short clip plays forwards then backwards."""
     start = int(rng.integers(0, max(length - frames, 0) + 1))
@@ -326,7 +321,7 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
     key = jnp.asarray(key) if isinstance(key, jax.Array) else jax.random.key(int(key))
     choice_key, detector_key = jax.random.split(key)
     rng = np.random.default_rng(np.asarray(jax.random.key_data(choice_key)).astype(np.uint64).ravel().tolist())
-    clip = _clip(config.clip_names[int(rng.integers(len(config.clip_names)))])
+    clip = mocap.shared_clip(config.clip_names[int(rng.integers(len(config.clip_names)))])
     person = int(rng.integers(clip.num_people))
     window = _window(rng, clip.num_frames, config.frames)
     h36m, body25 = clip.structri17[person].copy(), np.moveaxis(clip.body25[:, window], 0, 1)  # (T, people, 25, 3)

@@ -1,8 +1,11 @@
-"""Loaders for the camera calibration formats of the Shelf and Campus datasets.
+"""The calibration formats of the Shelf and Campus datasets, read and (the JSON ones) written.
 
 Each loader returns a stacked rig (:class:`~geometry.Camera` with a leading ``views`` axis, ordered by
 camera id) in the project's convention: metres, ``x_cam = R X + t``, OpenCV distortion. Malformed
 files raise :class:`CalibrationError` naming the file and the line (text) or camera and key (JSON).
+Each writer is the exact inverse of its loader and replaces the file atomically. The EasyMocap and
+aniposelib formats and :func:`~geometry.load_calibration`, which recognises every layout, are in
+``_calibration_formats.py``; the checks they share with these formats live here.
 
 Formats:
 
@@ -10,9 +13,10 @@ Formats:
   with ``R`` (3x3), ``T`` (3x1, the camera CENTRE in world millimetres: ``x_cam = R (X_mm - T)``),
   ``fx, fy, cx, cy`` and the Human3.6M-style distortion ``k`` (3: k1, k2, k3) and ``p`` (2). VoxelPose's
   ``project_point_radial`` applies ``p`` in OpenCV's order, so ``dist = (k1, k2, p[0], p[1], k3)``.
-  The image size is not in the file.
+  The image size is not in the file; the writer refuses a K with skew (VoxelPose has no place for it).
 - 4D Association JSON: keys ``"0".."n-1"``, each with ``K`` (9 values, row-major), ``RT`` (12 values,
-  row-major 3x4 ``[R | t]``, t in metres) and ``imgSize`` [width, height]. No distortion.
+  row-major 3x4 ``[R | t]``, t in metres) and ``imgSize`` [width, height]. No distortion: the writer
+  refuses a rig that has some.
 - TUM projection matrices ``P0.txt, P1.txt, ...``: a 3x4 matrix acting on world metres, rows on lines,
   values separated by commas (Shelf) or spaces (Campus). Decomposed with
   :func:`~geometry.camera_from_projection`; the image size is not in the file.
@@ -29,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ._camera import Camera, camera_from_projection
+from ._files import replace_file
 
 __all__ = [
     "CalibrationError",
@@ -37,6 +42,8 @@ __all__ = [
     "load_voxelpose_calibration",
     "load_4dassociation_calibration",
     "load_projection_matrices",
+    "save_voxelpose_calibration",
+    "save_4dassociation_calibration",
 ]
 
 SHELF_IMAGE_SIZE = (1032, 776)
@@ -45,11 +52,13 @@ CAMPUS_IMAGE_SIZE = (360, 288)
 """Campus image [width, height] in pixels (the TUM P matrices are already scaled to it)."""
 
 _ROTATION_TOLERANCE = 1e-4
-"""Largest |R R^T - I| entry accepted; the published files round R to 6-8 digits."""
+"""Largest |R R^T - I| entry accepted, and largest entry difference between two stored forms of one
+rotation (EasyMocap's Rodrigues vector and matrix); the published files round R to 6-8 digits."""
 
 
 class CalibrationError(ValueError):
-    """A calibration file is missing, malformed or inconsistent; the message names file and place."""
+    """A calibration file is missing, malformed or inconsistent, or a rig cannot be written in the asked
+    format; the one-line message names the file and the place (camera and key, or line)."""
 
 
 def _read_json(path: Path) -> dict:
@@ -73,7 +82,9 @@ def _read_json(path: Path) -> dict:
     return {key: data[key] for key in expected}
 
 
-def _json_array(path: Path, camera: str, entry: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
+def _entry_array(path: Path, camera: str, entry: dict, key: str, shape: tuple[int, ...] | None) -> np.ndarray:
+    """The numbers under ``key`` of a camera's JSON object or TOML table, in ``shape`` (None: a flat list of
+    any length, as a vector)."""
     where = f"{path}: camera '{camera}', key '{key}'"
     if key not in entry:
         raise CalibrationError(f"{where}: missing (present keys: {sorted(entry)})")
@@ -81,11 +92,19 @@ def _json_array(path: Path, camera: str, entry: dict, key: str, shape: tuple[int
         value = np.asarray(entry[key], dtype=np.float64)
     except (TypeError, ValueError) as error:
         raise CalibrationError(f"{where}: not an array of numbers ({error})") from error
+    if shape is None:
+        if value.ndim > 1:
+            raise CalibrationError(f"{where}: expected a flat list of numbers, got shape {value.shape}")
+        shape = (value.size,)
     if value.size != int(np.prod(shape)):
         raise CalibrationError(f"{where}: expected {int(np.prod(shape))} values {shape}, got shape {value.shape}")
+    _check_finite(where, value)
+    return value.reshape(shape)
+
+
+def _check_finite(where: str, value: np.ndarray) -> None:
     if not np.all(np.isfinite(value)):
         raise CalibrationError(f"{where}: contains NaN or inf")
-    return value.reshape(shape)
 
 
 def _check_rotation(where: str, R: np.ndarray) -> None:
@@ -99,6 +118,22 @@ def _stack(cameras: list[dict[str, np.ndarray]]) -> Camera:
     return Camera.create(**fields)
 
 
+def _rig_arrays(rig: Camera) -> dict[str, np.ndarray]:
+    """The rig's fields as float64 NumPy arrays, each with the leading views axis."""
+    if np.ndim(rig.K) != 3:
+        raise ValueError(f"expected a rig (a Camera with a leading views axis), got K of shape {np.shape(rig.K)}")
+    return {name: np.asarray(value, np.float64) for name, value in rig._asdict().items()}
+
+
+def _image_size_values(image_size: np.ndarray) -> list[int | float]:
+    """[width, height] as the files hold them: integers (what the tools write) unless fractional."""
+    return [int(v) if float(v).is_integer() else float(v) for v in image_size]
+
+
+def _write_json(path: Path, data: dict) -> None:
+    replace_file(path, lambda temporary: temporary.write_text(json.dumps(data, indent=2) + "\n"))
+
+
 def load_voxelpose_calibration(
     path: str | PathLike, *, image_size: Sequence[float | int] | np.ndarray
 ) -> Camera:
@@ -110,12 +145,12 @@ def load_voxelpose_calibration(
     path = Path(path)
     cameras = []
     for key, entry in _read_json(path).items():
-        R = _json_array(path, key, entry, "R", (3, 3))
+        R = _entry_array(path, key, entry, "R", (3, 3))
         _check_rotation(f"{path}: camera '{key}', key 'R'", R)
-        centre_mm = _json_array(path, key, entry, "T", (3,))
-        fx, fy, cx, cy = (float(_json_array(path, key, entry, name, ())) for name in ("fx", "fy", "cx", "cy"))
-        k = _json_array(path, key, entry, "k", (3,))
-        p = _json_array(path, key, entry, "p", (2,))
+        centre_mm = _entry_array(path, key, entry, "T", (3,))
+        fx, fy, cx, cy = (float(_entry_array(path, key, entry, name, ())) for name in ("fx", "fy", "cx", "cy"))
+        k = _entry_array(path, key, entry, "k", (3,))
+        p = _entry_array(path, key, entry, "p", (2,))
         cameras.append({
             "K": np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]),
             "R": R,
@@ -126,22 +161,63 @@ def load_voxelpose_calibration(
     return _stack(cameras)
 
 
+def save_voxelpose_calibration(path: str | PathLike, rig: Camera) -> None:
+    """Write a rig as a VoxelPose calibration JSON, the inverse of :func:`load_voxelpose_calibration`.
+
+    The camera centre ``T = -R^-1 t`` goes in millimetres (``R^-1``, not ``R^T``: the published R are
+    orthonormal to 6 digits only, and the loader multiplies by that R) and ``dist`` splits into
+    ``k = (k1, k2, k3)`` and ``p = (p1, p2)``; the image size is not stored. A K with skew cannot be written."""
+    path = Path(path)
+    arrays = _rig_arrays(rig)
+    data = {}
+    for i, (K, R, t, dist) in enumerate(zip(arrays["K"], arrays["R"], arrays["t"], arrays["dist"])):
+        if K[0, 1] != 0.0 or K[1, 0] != 0.0 or np.any(K[2] != [0.0, 0.0, 1.0]):
+            raise CalibrationError(f"{path}: camera '{i}': VoxelPose stores fx, fy, cx, cy only, got K = {K.tolist()}")
+        data[str(i)] = {
+            "k": [[dist[0]], [dist[1]], [dist[4]]],
+            "p": [[dist[2]], [dist[3]]],
+            "R": R.tolist(),
+            "T": (-np.linalg.solve(R, t) * 1000.0)[:, None].tolist(),
+            "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
+        }
+    _write_json(path, data)
+
+
 def load_4dassociation_calibration(path: str | PathLike) -> Camera:
     """Load a 4D Association calibration JSON (K, RT with t in metres, imgSize) as a rig."""
     path = Path(path)
     cameras = []
     for key, entry in _read_json(path).items():
-        K = _json_array(path, key, entry, "K", (3, 3))
-        RT = _json_array(path, key, entry, "RT", (3, 4))
+        K = _entry_array(path, key, entry, "K", (3, 3))
+        RT = _entry_array(path, key, entry, "RT", (3, 4))
         _check_rotation(f"{path}: camera '{key}', key 'RT'", RT[:, :3])
         cameras.append({
             "K": K,
             "R": RT[:, :3],
             "t": RT[:, 3],
             "dist": np.zeros(5),
-            "image_size": _json_array(path, key, entry, "imgSize", (2,)),
+            "image_size": _entry_array(path, key, entry, "imgSize", (2,)),
         })
     return _stack(cameras)
+
+
+def save_4dassociation_calibration(path: str | PathLike, rig: Camera) -> None:
+    """Write a rig as a 4D Association calibration JSON, the inverse of :func:`load_4dassociation_calibration`.
+
+    The format has no distortion, so a rig with any non-zero coefficient is refused."""
+    path = Path(path)
+    arrays = _rig_arrays(rig)
+    data = {}
+    for i, (K, R, t, dist, image_size) in enumerate(zip(*arrays.values())):
+        if np.any(dist != 0.0):
+            raise CalibrationError(
+                f"{path}: camera '{i}': 4D Association calibrations have no distortion, got dist = {dist.tolist()}")
+        data[str(i)] = {
+            "K": K.ravel().tolist(),
+            "RT": np.column_stack([R, t]).ravel().tolist(),
+            "imgSize": _image_size_values(image_size),
+        }
+    _write_json(path, data)
 
 
 def _read_projection_matrix(path: Path) -> np.ndarray:
@@ -171,6 +247,12 @@ def _read_projection_matrix(path: Path) -> np.ndarray:
     return P
 
 
+def _projection_files(folder: Path) -> list[tuple[int, Path]]:
+    """The folder's ``P<i>.txt`` files with their numbers i, ordered by i (P10 after P9)."""
+    numbered = [(int(m.group(1)), p) for p in folder.glob("P*.txt") if (m := re.fullmatch(r"P(\d+)\.txt", p.name))]
+    return sorted(numbered)
+
+
 def load_projection_matrices(
     source: str | PathLike | Sequence[str | PathLike], *, image_size: Sequence[float | int] | np.ndarray
 ) -> Camera:
@@ -180,8 +262,7 @@ def load_projection_matrices(
     order. ``image_size`` is [width, height] in pixels."""
     if isinstance(source, (str, PathLike)):
         folder = Path(source)
-        numbered = [(m, p) for p in folder.glob("P*.txt") if (m := re.fullmatch(r"P(\d+)\.txt", p.name))]
-        paths = [p for _, p in sorted(numbered, key=lambda mp: int(mp[0].group(1)))]
+        paths = [path for _, path in _projection_files(folder)]
         if not paths:
             raise CalibrationError(f"{folder}: no projection matrix files P<i>.txt")
     else:

@@ -1,6 +1,7 @@
 """JCSAT (Jiang et al., TVCG 2025): the OTAP Sinkhorn aggregation and the transformer (paper Sec. 3.2-3.4), its
 losses, synthetic training data and training loop, reading a trained model back (:func:`load_model`), and
-inference on tracked people (:func:`predict_shelf15`).
+inference on tracked people (:func:`predict_shelf15`) and the whole multi-person pipeline on arrays
+(:func:`reconstruct`).
 
 The model's input, the Joint Cloud of each tracked person (paper Sec. 3.1 and Algorithm 1), is built by the
 learning-free multi-person pipeline of :mod:`association` (:func:`association.track_people`), which also holds the
@@ -19,7 +20,11 @@ from ._data import VALIDATION_CLIPS as VALIDATION_CLIPS
 from ._data import window_batch as window_batch
 from ._data import WindowDataset as WindowDataset
 from ._inference import AGGREGATES as AGGREGATES
+from ._inference import DEFAULT_AGGREGATE as DEFAULT_AGGREGATE
+from ._inference import DEFAULT_WINDOW_STRIDE as DEFAULT_WINDOW_STRIDE
 from ._inference import predict_shelf15 as predict_shelf15
+from ._inference import reconstruct as reconstruct
+from ._inference import Reconstruction as Reconstruction
 from ._losses import bone_losses as bone_losses
 from ._losses import jcsat_loss as jcsat_loss
 from ._losses import LossConfig as LossConfig

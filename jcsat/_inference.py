@@ -9,12 +9,16 @@ track that contain t (ending at t .. t + N - 1), end on the grid of every ``stri
 from the last, and end at a frame where the track is present; t's own causal window if there is none.
 A stride s runs about 1/s of the windows, each for all N frames. A track absent from a window's first frame (it starts later, or a gap was bridged)
 takes the centre of its nearest frame with one.
+
+:func:`reconstruct` is the whole multi-person pipeline on arrays: the learning-free tracks of
+:func:`association.run_geometric_baseline`, then (with a model) the model on every output row of those tracks.
 """
 
 from __future__ import annotations
 
+import time
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -22,14 +26,31 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Int
 
-from association import PersonJointCloud, filled_centres, window_frames
+import mocap
+from association import (
+    BaselineConfig,
+    BaselineResult,
+    PersonJointCloud,
+    filled_centres,
+    run_geometric_baseline,
+    window_frames,
+)
+from geometry import Camera
 
 from ._model import JCSAT
 
-__all__ = ["AGGREGATES", "predict_shelf15"]
+__all__ = ["AGGREGATES", "DEFAULT_AGGREGATE", "DEFAULT_WINDOW_STRIDE", "Reconstruction", "predict_shelf15",
+           "reconstruct"]
 
 AGGREGATES: tuple[str, ...] = ("last", "mean")
 """How :func:`predict_shelf15` turns window predictions into one pose per frame (see the module docstring)."""
+DEFAULT_AGGREGATE = "mean"
+"""The main job's aggregate: ``"mean"`` (offline) scores better than ``"last"`` (causal, online) on synthetic
+validation (``python -m experiments.shelf_validate --jcsat``; ``docs/jcsat.md``)."""
+DEFAULT_WINDOW_STRIDE = 3
+"""The main job's window grid for ``"mean"``: strides 1, 2 and 3 score alike on synthetic validation
+(``shelf_validate --jcsat``; ``docs/jcsat.md``), and 3 runs a third of the windows, for the frame rate
+(``bench_jcsat``)."""
 
 
 @partial(jax.jit, static_argnames=("graphdef", "last_frame_only"))
@@ -105,3 +126,50 @@ def _window_predictions(
         predicted = _predict(graphdef, state, jnp.asarray(window_points), jnp.asarray(window_mask), last_frame_only)
         out[chunk] = np.asarray(predicted, float)[:count] + centre[chunk, None, None, :]
     return out
+
+
+class Reconstruction(NamedTuple):
+    """What :func:`reconstruct` returns."""
+
+    predictions: mocap.PosePredictions
+    """The method's Shelf15 poses (metres), one row per output track and frame: the baseline's rows, re-posed by
+    the model when there is one."""
+    baseline: BaselineResult
+    """The learning-free pipeline's result: its tracks, Joint Cloud and its own predictions."""
+    seconds: dict[str, float]
+    """Wall time of each stage, the model's as ``"jcsat"`` (compilation included on the first call)."""
+
+
+def reconstruct(
+    rig: Camera,
+    detections: list[list[mocap.Detections]],
+    frame_indices: Int[np.ndarray, " F"],
+    model: JCSAT | None = None,
+    *,
+    baseline: BaselineConfig = BaselineConfig(),
+    aggregate: str = DEFAULT_AGGREGATE,
+    stride: int = DEFAULT_WINDOW_STRIDE,
+) -> Reconstruction:
+    """People in 3D from calibrated multi-view BODY25 detections ``detections[frame][view]`` seen by ``rig``.
+
+    The learning-free pipeline (:func:`association.run_geometric_baseline` with ``baseline``) finds the people,
+    tracks them and poses them; with a ``model`` (:func:`load_model`), the model then re-poses every output row
+    from its track's Joint Cloud windows (:func:`predict_shelf15` with ``aggregate`` and ``stride``), keeping the
+    baseline's rows, ranks and supports. ``frame_indices[f]`` is the frame number written into the predictions.
+    """
+    if model is not None:  # before the baseline's work
+        if aggregate not in AGGREGATES:
+            raise ValueError(f"aggregate must be one of {AGGREGATES}, got {aggregate!r}")
+        if not 1 <= stride <= model.config.frames:
+            raise ValueError(f"stride must be in [1, {model.config.frames}] (the window length), got {stride}")
+    result = run_geometric_baseline(rig, detections, frame_indices, baseline)
+    seconds = dict(result.seconds)
+    if model is None:
+        return Reconstruction(result.predictions, result, seconds)
+    rows = result.predictions
+    position = np.searchsorted(np.asarray(frame_indices), rows.frame)
+    start = time.perf_counter()
+    poses = predict_shelf15(model, result.person_cloud, rows.person, position, aggregate=aggregate, stride=stride)
+    seconds["jcsat"] = time.perf_counter() - start
+    return Reconstruction(mocap.PosePredictions.create(rows.frame, rows.person, poses, score=rows.score), result,
+                          seconds)

@@ -35,6 +35,7 @@ from jax.sharding import NamedSharding
 from jax.typing import ArrayLike
 
 import geometry
+import mocap
 import training
 from geometry import SHELF15
 
@@ -99,6 +100,11 @@ class TrainConfig:
         shared_seeds = set(self.data.seeds) & set(self.validation_data.seeds)
         if shared_seeds:
             raise ValueError(f"training and validation scenes share seeds {sorted(shared_seeds)[:5]}")
+        held_out = [clip for clip in self.data.clips if clip in set(VALIDATION_CLIPS) | set(self.validation_data.clips)
+                    or any(mocap.cmu_expmap_split(part) == "test" for part in mocap.clip_files(clip))]
+        if held_out:
+            raise ValueError(f"training clips {held_out[:3]} are held out (validation clips or the CMU-Mocap "
+                             "benchmark's test split)")
 
 
 TRAIN_CONFIGS: dict[str, TrainConfig] = {

@@ -1,4 +1,5 @@
-"""Motion sources, multi-view scene synthesis with a 2D detector model, a mesh rasteriser, and real-dataset loaders."""
+"""Motion sources, multi-view scene synthesis with a 2D detector model, a mesh rasteriser, real-dataset loaders, 2D
+keypoint files of the standard detectors, BVH export of reconstructed people, and the scene viewer and animation."""
 
 from importlib.metadata import version as _version
 
@@ -10,8 +11,10 @@ from ._bvh import CMU_METRES_PER_UNIT as CMU_METRES_PER_UNIT
 from ._bvh import SALSA_METRES_PER_UNIT as SALSA_METRES_PER_UNIT
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
+from ._clip_files import clip_files as clip_files
 from ._clip_files import load_clip_file as load_clip_file
 from ._clip_files import resolve_clip as resolve_clip
+from ._clip_files import shared_clip as shared_clip
 from ._clips import ASSETS as ASSETS
 from ._clips import CLIP_SOURCES as CLIP_SOURCES
 from ._clips import Clip as Clip
@@ -26,6 +29,7 @@ from ._cmu_expmap import CMU_EXPMAP_OFFSETS as CMU_EXPMAP_OFFSETS
 from ._cmu_expmap import CMU_EXPMAP_PARENTS as CMU_EXPMAP_PARENTS
 from ._cmu_expmap import cmu_expmap_clip as cmu_expmap_clip
 from ._cmu_expmap import cmu_expmap_files as cmu_expmap_files
+from ._cmu_expmap import cmu_expmap_split as cmu_expmap_split
 from ._cmu_expmap import read_cmu_expmap as read_cmu_expmap
 from ._data_root import find_data_root as find_data_root
 from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS
@@ -58,6 +62,14 @@ from ._evaluation import ground_truth_from_shelf14 as ground_truth_from_shelf14
 from ._evaluation import match_predictions as match_predictions
 from ._evaluation import prediction_problems as prediction_problems
 from ._evaluation import shelf_evaluation_ground_truth as shelf_evaluation_ground_truth
+from ._joint_motion import motion_from_joints as motion_from_joints
+from ._keypoint_files import DetectionFileError as DetectionFileError
+from ._keypoint_files import KEYPOINT_FORMAT_JOINTS as KEYPOINT_FORMAT_JOINTS
+from ._keypoint_files import KeypointDetections as KeypointDetections
+from ._keypoint_files import detections_from_keypoints as detections_from_keypoints
+from ._keypoint_files import load_keypoint_detections as load_keypoint_detections
+from ._keypoint_files import write_coco_keypoints as write_coco_keypoints
+from ._keypoint_files import write_openpose_keypoints as write_openpose_keypoints
 from ._motion import Motion as Motion
 from ._motion import Y_UP_TO_Z_UP as Y_UP_TO_Z_UP
 from ._motion import build_motion as build_motion
@@ -87,6 +99,10 @@ from ._scene import compose_scene as compose_scene
 from ._scene import motion_group as motion_group
 from ._scene import place_groups as place_groups
 from ._scene import synthesise_scene as synthesise_scene
+from ._scene_viewer import FRUSTUM_DEPTH_M as FRUSTUM_DEPTH_M
+from ._scene_viewer import person_colour as person_colour
+from ._scene_viewer import write_scene_animation as write_scene_animation
+from ._scene_viewer import write_scene_html as write_scene_html
 from ._shelf_campus import FOUR_D_ASSOCIATION_PAF_EXPONENT as FOUR_D_ASSOCIATION_PAF_EXPONENT
 from ._shelf_campus import PersonSkeleton as PersonSkeleton
 from ._shelf_campus import SHELF_DETECTION_FIRST_FRAME as SHELF_DETECTION_FIRST_FRAME

@@ -27,7 +27,7 @@ from jaxtyping import ArrayLike, Float
 
 import geometry
 
-from ._motion import Y_UP_TO_Z_UP, Motion, build_motion, euler_matrices, malformed
+from ._motion import Y_UP_TO_Z_UP, Motion, build_motion, euler_angles, euler_matrices, malformed
 
 __all__ = ["CMU_METRES_PER_UNIT", "SALSA_METRES_PER_UNIT", "read_bvh", "write_bvh"]
 
@@ -346,7 +346,7 @@ def write_bvh(
     lines, channel_joints = _hierarchy(skeleton, children, end_sites, offsets / metres_per_unit)
     file_rotations = local_rotations[:, channel_joints].copy()
     file_rotations[:, 0] = Y_UP_TO_Z_UP.T @ file_rotations[:, 0]  # the root comes first; the reader turns it back
-    degrees = np.rad2deg(np.asarray(geometry.matrix_to_euler(file_rotations, _WRITE_ORDER), dtype=np.float64))
+    degrees = np.rad2deg(euler_angles(file_rotations, _WRITE_ORDER))
     file_root = root_positions @ Y_UP_TO_Z_UP / metres_per_unit  # row-vector form of Y_UP_TO_Z_UP.T @ p
     num_frames = len(root_positions)
     lines += ["MOTION", f"Frames: {num_frames}", f"Frame Time: {1.0 / fps:.10f}"]

@@ -29,7 +29,7 @@ from ._clips import Clip, clip_from_motions
 from ._data_root import find_data_root
 from ._motion import Motion, build_motion, malformed
 
-__all__ = ["CMU_EXPMAP_FPS", "CMU_EXPMAP_NODES", "CMU_EXPMAP_OFFSETS", "CMU_EXPMAP_PARENTS", "cmu_expmap_clip",
+__all__ = ["CMU_EXPMAP_FPS", "CMU_EXPMAP_NODES", "CMU_EXPMAP_OFFSETS", "CMU_EXPMAP_PARENTS", "cmu_expmap_clip", "cmu_expmap_split",
            "cmu_expmap_files", "read_cmu_expmap"]
 
 CMU_EXPMAP_FPS = 120.0
@@ -108,6 +108,13 @@ def cmu_expmap_files(data_root: str | os.PathLike | None = None, split: str = "t
     if not files:
         raise ValueError(f"{root / 'cmu_expmap' / split} holds no <action>/<file>.txt")
     return files
+
+
+def cmu_expmap_split(path: str | os.PathLike) -> str | None:
+    """``"train"`` or ``"test"`` for a file of the CMU-Mocap benchmark (``.../cmu_expmap/<split>/<action>/<file>``),
+    None for any other path: what training code checks to keep the test split out."""
+    parts = Path(path).parts
+    return parts[-3] if len(parts) >= 4 and parts[-4] == "cmu_expmap" and parts[-3] in _SPLITS else None
 
 
 def cmu_expmap_clip(path: str | os.PathLike, fps: float = 30.0) -> Clip:

@@ -146,6 +146,7 @@ def _pad(array: np.ndarray, size: int) -> np.ndarray:
 
 _jit_forward_kinematics = jax.jit(geometry.forward_kinematics, static_argnums=3)
 _jit_euler_to_matrix = jax.jit(geometry.euler_to_matrix, static_argnums=1)
+_jit_matrix_to_euler = jax.jit(geometry.matrix_to_euler, static_argnums=1)
 
 
 def euler_matrices(angles: Float[np.ndarray, "T K 3"], order: str) -> Float[np.ndarray, "T K 3 3"]:
@@ -153,6 +154,13 @@ def euler_matrices(angles: Float[np.ndarray, "T K 3"], order: str) -> Float[np.n
     num = angles.shape[0]
     padded = _pad(np.asarray(angles, dtype=np.float64), _padded_frames(num))
     return np.asarray(_jit_euler_to_matrix(padded, order), dtype=np.float64)[:num]
+
+
+def euler_angles(matrices: Float[np.ndarray, "T K 3 3"], order: str) -> Float[np.ndarray, "T K 3"]:
+    """:func:`geometry.matrix_to_euler` over frames (radians), jitted on padded frame counts."""
+    num = matrices.shape[0]
+    padded = _pad(np.asarray(matrices, dtype=np.float64), _padded_frames(num))
+    return np.asarray(_jit_matrix_to_euler(padded, order), dtype=np.float64)[:num]
 
 
 def _forward_kinematics(local_rotations, offsets, root_positions, parents):

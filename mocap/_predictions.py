@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 
 import geometry
 
@@ -115,6 +115,25 @@ class PosePredictions(NamedTuple):
     def in_frame(self, frame: int) -> Float[np.ndarray, "k 15 3"]:
         """The joints predicted in actorsGT frame ``frame``, in output order."""
         return self.joints[self.frame == frame]
+
+    def by_person(self, frames: Int[np.ndarray, " F"]) -> tuple[Int[np.ndarray, " P"], Float[np.ndarray, "P F 15 3"],
+                                                              Bool[np.ndarray, "P F"]]:
+        """The rows as one array per person over ``frames`` (increasing): the person ids (sorted), their joints
+        (zeros where a person has no row) and where they have one. Raises ``ValueError`` for a row outside
+        ``frames`` or two rows of one person in one frame."""
+        frames = np.asarray(frames)
+        persons, person_index = np.unique(self.person, return_inverse=True)
+        frame_index = np.searchsorted(frames, self.frame)
+        outside = (frame_index >= len(frames)) | (frames[np.minimum(frame_index, len(frames) - 1)] != self.frame)
+        if outside.any():
+            raise ValueError(f"prediction frame {self.frame[np.argmax(outside)]} is not among the {len(frames)} frames")
+        joints = np.zeros((len(persons), len(frames), _NUM_JOINTS, 3))
+        present = np.zeros((len(persons), len(frames)), bool)
+        if len(np.unique(person_index * len(frames) + frame_index)) < self.num_predictions:
+            raise ValueError("two rows of one person in one frame")
+        joints[person_index, frame_index] = self.joints
+        present[person_index, frame_index] = True
+        return persons, joints, present
 
 
 def write_predictions(path: str | os.PathLike, predictions: PosePredictions) -> None:

@@ -1,4 +1,4 @@
-"""The documentation cannot rot: the README's Python example runs and prints what the README says it prints,
+"""The documentation cannot rot: the README's Python examples run and print what the README says they print,
 and every relative link in README.md, CHANGELOG.md and docs/*.md points at a file of the repository."""
 
 import contextlib
@@ -24,12 +24,14 @@ def relative_links(markdown: str) -> list[str]:
 
 
 @pytest.mark.slow
-def test_readme_example_runs_and_prints_what_the_readme_says():
+@pytest.mark.parametrize("number", [0, 1])
+def test_readme_example_runs_and_prints_what_the_readme_says(number):
     readme = README.read_text()
-    (example,) = _PYTHON_BLOCK.findall(readme)
+    examples = _PYTHON_BLOCK.findall(readme)
+    assert len(examples) == 2, "the README has two Python examples: the pipeline, then triangulation"
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        exec(compile(example, str(README), "exec"), {"__name__": "readme_example"})
+        exec(compile(examples[number], str(README), "exec"), {"__name__": "readme_example"})
     lines = printed.getvalue().splitlines()
     assert lines, "the README example prints nothing"
     for line in lines:

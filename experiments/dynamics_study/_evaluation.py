@@ -1,10 +1,13 @@
 """The dynamics experiment (``python -m experiments.dynamics``): the models and ZeroMotion on held-out synthetic videos.
 
-:func:`run_experiment` renders the held-out clips (:class:`~dynamics.EvalConfig`), computes the backbone features
-of their crops, scores every window (:func:`~dynamics.predict_windows`) and writes to ``out``:
-``results.json`` (the configuration, the summary at every future frame, the timings), ``results.md`` (the tables),
-``prediction_<group>.png`` (Fig. 5.1 per sample group) and ``strip.png`` (one two-person window: the video, each
-model's meshes and ZeroMotion's over it, at observed and future frames).
+:func:`run_experiment` renders the test clips (:class:`~dynamics.EvalConfig`: the held-out shipped clips, or any
+clips and motion files), computes the backbone features of their crops, scores every window
+(:func:`~dynamics.predict_windows`; a clip's samples are two-person ones when it holds two people) and writes to
+``out``: ``results.json`` (the configuration, the summary at every future frame, the timings), ``results.md`` (the
+tables), ``prediction_<group>.png`` (Fig. 5.1 per sample group) and ``strip.png`` (the first window of the first
+two-person clip, else of the first clip, freshly rendered: a row per method, titled on the left - the video, each
+model's meshes and ZeroMotion's over it - and a column per frame of :data:`STRIP_FRAMES`, titled above by its place
+relative to the last observed frame t: ``observed t-12``, ``observed t``, ``predicted t+1``, ...).
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import cv2
@@ -25,8 +28,8 @@ from jaxtyping import Array, Float
 import geometry
 import mocap
 import training
-from dynamics import (TEST_MULTI_PERSON_CLIPS, EvalConfig, build_frames, compute_features, crop_square,
-                      predict_windows, square_boxes, summarise, video_tracks, zero_motion)
+from dynamics import (EvalConfig, build_frames, compute_features, crop_square, predict_windows, square_boxes,
+                      summarise, video_tracks, zero_motion)
 
 from ._report import overlay_meshes, plot_prediction, results_markdown
 
@@ -36,6 +39,10 @@ STRIP_FRAMES: tuple[int, ...] = (12, 24, 25, 29, 34, 44, 54)
 """Window frames shown in the strip: two observed, then future frames 1, 5, 10, 20 and 30."""
 STRIP_SIZE = 240
 """Pixels per strip image: the region around the people, enlarged."""
+_TITLE_FONT = (cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)
+"""Face, scale and thickness of the strip's titles: about 11 pixels a character, a 14-character title in a column."""
+_TITLE_PAD = 8
+"""Pixels of white around a title."""
 
 
 def run_experiment(out: str | Path, backbone, models: Mapping[str, nnx.Module], body: geometry.BodyModel,
@@ -56,19 +63,24 @@ def run_experiment(out: str | Path, backbone, models: Mapping[str, nnx.Module], 
     (out / "results.md").write_text(results_markdown(summary))
     for group in summary:
         plot_prediction(summary, group, out / f"prediction_{group}.png")
-    if any(c in config.data.clips for c in TEST_MULTI_PERSON_CLIPS):
-        cv2.imwrite(str(out / "strip.png"), write_strip(backbone, models, body, config)[..., ::-1])
+    # The strip shows the first clip with the most people of those long enough for a window (some are: windows were
+    # scored).
+    long_enough = [c for c in range(len(config.data.clips))
+                   if np.max(frames.frame[frames.clip == c]) + 1 >= config.length]
+    shown = max(long_enough, key=lambda c: np.max(frames.person[frames.clip == c]))
+    strip = write_strip(backbone, models, body, config, mocap.load_clip_file(config.data.clips[shown]))
+    cv2.imwrite(str(out / "strip.png"), strip[..., ::-1])
     log({"event": "dynamics_experiment", "seconds": seconds})
     return results
 
 
-def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyModel, config: EvalConfig
-                ) -> np.ndarray:
+def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyModel, config: EvalConfig,
+                clip: mocap.Clip) -> np.ndarray:
     """Rows: the video, then each model's meshes over it, then ZeroMotion's (from the first model); columns:
-    :data:`STRIP_FRAMES` of the first window of a freshly rendered two-person test clip, each cropped to the
-    people. RGB uint8."""
+    :data:`STRIP_FRAMES` of the first window of ``clip`` freshly rendered, each cropped to the people. Each row is
+    titled on its left (``video``, the model's name, ``ZeroMotion``), each column above it (the frame relative to
+    the last observed one, t). RGB uint8."""
     rng = np.random.default_rng(config.data.seed)
-    clip = mocap.load_clip(TEST_MULTI_PERSON_CLIPS[0])
     motion = mocap.retarget_clip(clip, body, rng.normal(0.0, config.data.shape_std, (clip.num_people, body.num_shapes)))
     motion = motion._replace(rotations=motion.rotations[:, :config.length],
                              translation=motion.translation[:, :config.length])
@@ -98,7 +110,39 @@ def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyM
                                     roots[:, shown_frames]))  # (people, shown frames, vertices, 3)
         strip.append([zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), list(meshes[:, column]), body))
                       for column, t in enumerate(STRIP_FRAMES)])
-    return np.concatenate([np.concatenate(row, axis=1) for row in strip], axis=0)
+    return _titled(strip, ["video", *models, "ZeroMotion"], [_frame_title(t, T) for t in STRIP_FRAMES])
+
+
+def _frame_title(frame: int, observed: int) -> str:
+    """Window frame ``frame`` named by its place relative to the last of the ``observed`` frames, t."""
+    offset = frame - (observed - 1)
+    return f"observed t{offset:+d}" if offset < 0 else "observed t" if offset == 0 else f"predicted t{offset:+d}"
+
+
+def _titled(cells: Sequence[Sequence[np.ndarray]], row_titles: Sequence[str], column_titles: Sequence[str]
+            ) -> np.ndarray:
+    """The equal-sized RGB ``cells`` (rows of columns) as one image with a white margin on the left and on top:
+    each row's title left of it, each column's centred above it."""
+    face, scale, thickness = _TITLE_FONT
+
+    def size(title: str) -> tuple[int, int, int]:
+        (width, rise), descent = cv2.getTextSize(title, face, scale, thickness)
+        return width, rise, descent
+
+    def put(title: str, x: int, baseline: int) -> None:
+        cv2.putText(image, title, (x, baseline), face, scale, (0, 0, 0), thickness, cv2.LINE_AA)
+
+    height, width = cells[0][0].shape[:2]
+    left = max(size(title)[0] for title in row_titles) + 2 * _TITLE_PAD
+    rise = max(size(title)[1] for title in column_titles)
+    top = rise + max(size(title)[2] for title in column_titles) + 2 * _TITLE_PAD
+    image = np.full((top + height * len(cells), left + width * len(cells[0]), 3), 255, np.uint8)
+    image[top:, left:] = np.concatenate([np.concatenate(row, axis=1) for row in cells], axis=0)
+    for row, title in enumerate(row_titles):
+        put(title, _TITLE_PAD, top + row * height + (height + size(title)[1]) // 2)
+    for column, title in enumerate(column_titles):
+        put(title, left + column * width + (width - size(title)[0]) // 2, _TITLE_PAD + rise)
+    return image
 
 
 @jax.jit

@@ -3,7 +3,9 @@ reprojection into every view (matplotlib's object API: no backend, no pyplot).
 
 Ground truth is drawn thick and black under the predictions; a predicted track is coloured when it
 matches a ground-truth person (mean joint distance below :data:`MATCH_DISTANCE_M`) and drawn thin,
-grey and dotted (labelled "unmatched") otherwise.
+grey and dotted (labelled "unmatched") otherwise. Without ground truth (a user's own recording), every output
+track takes the colour of its rank among the output tracks, as in the interactive viewer
+(:func:`mocap.person_colour`).
 """
 
 from __future__ import annotations
@@ -13,10 +15,12 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 import geometry
 from association import BaselineResult
 from geometry import SHELF15, Camera
+from mocap import person_colour
 
 __all__ = ["plot_frame", "MATCH_DISTANCE_M", "matched_tracks"]
 
@@ -69,21 +73,24 @@ def plot_frame(
     padded,
     result: BaselineResult,
     frame: int,
-    ground_truth: np.ndarray,
+    ground_truth: np.ndarray | None,
     title: str = "",
     track_poses: np.ndarray | None = None,
 ) -> None:
     """Write the figure for ``frame`` (index into the run's frames) to ``path`` (PNG).
 
     ``padded`` are the run's :class:`mocap.PaddedDetections`, ``ground_truth`` the annotated
-    people's SHELF15 joints in that frame ``(people, 15, 3)``. The Joint Cloud shown is that of the
+    people's SHELF15 joints in that frame ``(people, 15, 3)`` or None. The Joint Cloud shown is that of the
     track with the most clustered candidates in the frame, coloured by BODY25 joint type. The
     skeletons drawn are ``track_poses`` ``(T, 15, 3)`` (default: the baseline's poses).
     """
-    output = set(np.unique(result.predictions.person).tolist())
+    output = np.unique(result.predictions.person).tolist()
     present = [int(t) for t in np.flatnonzero(result.present[:, frame]) if int(t) in output]
     shelf15 = _track_shelf15(result, frame) if track_poses is None else track_poses
-    matches = matched_tracks(result, frame, ground_truth, shelf15)
+    if ground_truth is None:  # colour by output rank, as the viewer does
+        ground_truth, colour_of = np.zeros((0, 15, 3)), {t: output.index(t) for t in present}
+    else:
+        colour_of = matched_tracks(result, frame, ground_truth, shelf15)
     label = np.asarray(result.clusters.label[frame])  # (P, J, C, C)
     slots = np.flatnonzero(np.asarray(result.clusters.active[frame]))
     counts = [(label == s).sum() for s in slots]
@@ -93,8 +100,8 @@ def plot_frame(
     joint_type = np.nonzero(chosen)[1]
 
     def track_style(t: int) -> dict:
-        if t in matches:
-            return {"color": f"C{matches[t]}", "linewidth": 1.8}
+        if t in colour_of:
+            return {"color": person_colour(colour_of[t]), "linewidth": 1.8}
         return {"color": "0.5", "linestyle": ":", "linewidth": 1.0}
 
     gt_style = {"color": "k", "linewidth": 4.0, "alpha": 0.45}
@@ -111,10 +118,20 @@ def plot_frame(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
-    spurious = len(present) - len(matches)
-    ax.set_title(f"3D: one person's Joint Cloud (by joint type); GT (thick black); tracks matched to GT "
-                 f"(colour of the GT person: {len(matches)}/{len(ground_truth)}); unmatched (grey dotted): {spurious}",
-                 fontsize=8, wrap=True)
+    legend = [Line2D([], [], linestyle="", marker="o", markersize=4, color=colours[1], label="Joint Cloud")]
+    if len(ground_truth):
+        spurious = len(present) - len(colour_of)
+        ax.set_title(f"3D: one person's Joint Cloud (by joint type); GT (thick black); tracks matched to GT "
+                     f"(colour of the GT person: {len(colour_of)}/{len(ground_truth)}); unmatched (grey dotted): "
+                     f"{spurious}", fontsize=8, wrap=True)
+        legend.append(Line2D([], [], label="ground truth", **gt_style))
+        legend += [Line2D([], [], label=f"track {t} = GT person {colour_of[t] + 1}", **track_style(t))
+                   for t in present if t in colour_of]
+        legend += [Line2D([], [], label="unmatched track", **track_style(-1))] if spurious else []
+    else:
+        ax.set_title("3D: one person's Joint Cloud (by joint type) and every person", fontsize=8)
+        legend += [Line2D([], [], label=f"person {t}", **track_style(t)) for t in present]
+    ax.legend(handles=legend, fontsize=7, loc="upper left")
 
     for v in range(min(num_views, 5)):  # the grid has room for five views (Shelf)
         camera = rig.select(v)
@@ -130,7 +147,8 @@ def plot_frame(
         axv.set_xlim(0, width)
         axv.set_ylim(height, 0)
         axv.set_aspect("equal")
-        axv.set_title(f"view {v}: detections (grey dots), GT (thick black), matched tracks (colour)", fontsize=8)
+        axv.set_title(f"view {v}: detections (grey dots)" + (", GT (thick black), matched tracks (colour)"
+                                                             if len(ground_truth) else ", people (colour)"), fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=80)

@@ -31,7 +31,16 @@ import numpy as np
 import geometry
 import mocap
 from association import BaselineConfig, BaselineResult, run_geometric_baseline
-from jcsat import AGGREGATES, JCSAT, SHIPPED_MODEL, load_model, predict_shelf15
+from jcsat import (
+    AGGREGATES,
+    DEFAULT_AGGREGATE,
+    DEFAULT_WINDOW_STRIDE,
+    JCSAT,
+    SHIPPED_MODEL,
+    load_model,
+    predict_shelf15,
+    reconstruct,
+)
 
 from ._plot import plot_frame
 
@@ -76,14 +85,13 @@ class ShelfExperimentConfig:
     """Number of cameras (the first K kept ones) whose calibration is perturbed for the Joint Cloud."""
     perturb_seed: int = 0
     """Key of that perturbation (up to 0.25 cm and 2.5 degrees, paper Table 8)."""
-    aggregate: str = "mean"
+    aggregate: str = DEFAULT_AGGREGATE
     """How the model's windows become one pose per frame (:data:`~jcsat.AGGREGATES`): ``"mean"`` (offline, the
-    windows containing the frame), the better on synthetic validation (``python -m experiments.shelf_validate
-    --jcsat``), or ``"last"`` (causal, online)."""
-    window_stride: int = 3
-    """``"mean"``'s window grid (:func:`~jcsat.predict_shelf15`'s ``stride``): strides 1, 2 and 3 score alike on
-    synthetic validation (``shelf_validate --jcsat``; ``docs/jcsat.md``), and 3 runs a third of the windows, for
-    the frame rate (``bench_jcsat``)."""
+    windows containing the frame; the default, :data:`~jcsat.DEFAULT_AGGREGATE` says why) or ``"last"`` (causal,
+    online)."""
+    window_stride: int = DEFAULT_WINDOW_STRIDE
+    """``"mean"``'s window grid (:func:`~jcsat.predict_shelf15`'s ``stride``; the default:
+    :data:`~jcsat.DEFAULT_WINDOW_STRIDE`)."""
 
     def __post_init__(self) -> None:
         if self.window_stride < 1:
@@ -233,30 +241,27 @@ class _MethodOutputs(NamedTuple):
 
 def _run_methods(config: ShelfExperimentConfig, data: _ShelfData, event: Callable[..., None],
                  progress: Callable[[str], None]) -> _MethodOutputs:
-    """The geometric baseline, then (method ``jcsat``) the model on the baseline's tracks; the stage timings are
-    added to the baseline's ``seconds``."""
+    """The geometric baseline, then (method ``jcsat``) the model on the baseline's tracks (:func:`jcsat.reconstruct`);
+    the stage timings are added to the baseline's ``seconds``."""
     # A broken model file fails here, before the baseline's half minute, not after it.
     model = load_model(SHIPPED_MODEL if config.model is None else config.model) if config.method == "jcsat" else None
-    progress("geometric")
-    result = run_geometric_baseline(data.rig, data.detections, data.frame_indices, config.baseline)
-    event("geometric", seconds={k: round(v, 3) for k, v in result.seconds.items()},
+    progress(config.method)
+    run = reconstruct(data.rig, data.detections, data.frame_indices, model, baseline=config.baseline,
+                      aggregate=config.aggregate, stride=config.window_stride)
+    result = run.baseline
+    result.seconds.update(run.seconds)
+    event("geometric", seconds={k: round(v, 3) for k, v in result.seconds.items() if k != "jcsat"},
           tracks=int(result.present.shape[0]), predictions=int(result.predictions.num_predictions))
     compared = {"geometric": result.predictions}
     track_poses = None
     if model is not None:
-        progress("jcsat")
-        rows = result.predictions
+        rows = run.predictions
+        compared = {"jcsat": rows, **compared}
         position = np.searchsorted(data.frame_indices, rows.frame)
-        start = time.perf_counter()
-        poses = predict_shelf15(model, result.person_cloud, rows.person, position, aggregate=config.aggregate,
-                                stride=config.window_stride)
-        seconds = time.perf_counter() - start
-        result.seconds["jcsat"] = seconds
-        compared = {"jcsat": mocap.PosePredictions.create(rows.frame, rows.person, poses, score=rows.score), **compared}
         track_poses = np.zeros(result.present.shape + (15, 3))
-        track_poses[rows.person, position] = poses
-        event("jcsat", seconds=round(seconds, 3), windows=len(position),
-              frames_per_second=round(len(data.frame_indices) / seconds, 2))
+        track_poses[rows.person, position] = rows.joints
+        event("jcsat", seconds=round(run.seconds["jcsat"], 3), windows=len(position),
+              frames_per_second=round(len(data.frame_indices) / run.seconds["jcsat"], 2))
     return _MethodOutputs(result, compared, track_poses)
 
 

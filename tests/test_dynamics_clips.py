@@ -1,0 +1,111 @@
+"""The dynamics evaluation on any clip: motion files and salsa pairs as clips (dynamics/_data.py, mocap.clip_files),
+``python -m experiments.dynamics --clips`` and the strip's titles (experiments/dynamics_study/_evaluation.py)."""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mocap
+import training
+from dynamics import DataConfig
+from dynamics._data import _cache_file
+from experiments.dynamics_study import STRIP_FRAMES, STRIP_SIZE
+from experiments.dynamics_study._evaluation import _frame_title, _titled
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _expmap_file(path: Path, frames: int = 40, bend: float = 0.0) -> Path:
+    """A CMU exp-map file of ``frames`` frames at 120 Hz: the rest pose walking along x, one joint bent by ``bend``."""
+    values = np.zeros((frames, 3 + 3 * len(mocap.CMU_EXPMAP_NODES)))
+    values[:, 0] = np.linspace(0.0, 5.0, frames)
+    values[:, 3 + 3 * 2] = bend
+    path.write_text("".join(",".join(f"{v:.6f}" for v in row) + "\n" for row in values))
+    return path
+
+
+def test_a_data_config_takes_motion_files_and_pairs_of_them_and_refuses_the_rest(tmp_path):
+    walk, partner = _expmap_file(tmp_path / "walk.txt"), _expmap_file(tmp_path / "partner.txt", bend=0.5)
+    pair = f"{walk}+{partner}"
+    assert DataConfig(clips=("02_01_walk", str(walk), pair)).clips == ("02_01_walk", str(walk), pair)
+    clip = mocap.load_clip_file(pair)
+    assert clip.num_people == 2 and clip.num_frames == 10 and clip.sources == ("walk.txt", "partner.txt")
+    np.testing.assert_allclose(clip.body25[0], mocap.load_clip_file(walk).body25[0])  # each person as on their own
+    assert mocap.clip_files(pair) == (walk, partner) and mocap.clip_files("02_01_walk") == ()
+    with pytest.raises(ValueError, match=r"'no_such\.txt' is neither a shipped clip \(01_01_jumps, .*\) nor a file"):
+        DataConfig(clips=("no_such.txt",))
+    with pytest.raises(ValueError, match=r"'no_such\.txt' of '.*walk\.txt\+no_such\.txt' is not a file"):
+        DataConfig(clips=(f"{walk}+no_such.txt",))
+    with pytest.raises(ValueError, match="joins 3 people; the models take one or two"):
+        DataConfig(clips=(f"{pair}+{walk}",))
+    with pytest.raises(ValueError, match="people of one clip need the same frame count"):
+        mocap.load_clip_file(f"{walk}+{_expmap_file(tmp_path / 'short.txt', frames=20)}")
+
+
+def test_the_cache_key_tells_motion_files_apart_and_keeps_the_shipped_clips_key(tmp_path):
+    path = _expmap_file(tmp_path / "walk.txt")
+    config = DataConfig(clips=(str(path),))
+    first = _cache_file(config, [mocap.load_clip_file(path)], tmp_path)
+    _expmap_file(path, bend=0.5)  # another motion at the same path
+    assert _cache_file(config, [mocap.load_clip_file(path)], tmp_path) != first
+    shipped = DataConfig(clips=("02_01_walk",))
+    key = hashlib.sha1(json.dumps(training.to_jsonable(shipped), sort_keys=True).encode()).hexdigest()[:16]
+    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name == f"dynamics_frames_{key}.npz"
+
+
+@pytest.mark.data
+def test_a_salsa_pair_of_files_is_the_shipped_salsa_clip(data_root):
+    pair = mocap.load_clip_file("cmu_mocap/60_05_scaled.bvh+cmu_mocap/61_05_scaled.bvh", data_root)
+    shipped = mocap.load_clip("60_05_61_05_salsa")
+    assert pair.num_people == 2 and pair.trials == shipped.trials and pair.sources == shipped.sources
+    np.testing.assert_allclose(pair.body25, shipped.body25, atol=6e-4)  # shipped: rounded to 1 mm
+    np.testing.assert_allclose(pair.structri17, shipped.structri17, atol=6e-4)
+
+
+def test_the_command_refuses_a_missing_clip_file_on_one_line(tmp_path):
+    env = {key: value for key, value in os.environ.items() if key != "MVMOCAP_DATA_ROOT"}
+    run = subprocess.run([sys.executable, "-m", "experiments.dynamics", "--out", str(tmp_path / "out"),
+                          "--clips", "03_01_uneven", "missing.bvh"], cwd=REPO, env={**env, "PYTHONPATH": str(REPO)},
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert "error: --clips 'missing.bvh' is neither a shipped clip" in run.stderr, run.stderr
+    assert "(relative paths need --data-root)" in run.stderr and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("clips", "message"), [
+    (["missing.bvh"], "--clips 'missing.bvh' is neither a shipped clip"),
+    ([], "--clips names no clip"),
+])
+def test_the_options_refuse_a_bad_clip_before_any_work(clips, message, capsys):
+    from experiments import _cli, dynamics
+
+    with pytest.raises(SystemExit) as exit_info:
+        _cli.parse(dynamics.Config, ["--out", "x", "--clips", *clips], prog="dynamics")
+    error = capsys.readouterr().err
+    assert exit_info.value.code == 2 and error.count("\n") == 1 and message in error, error
+
+
+def test_the_strip_titles_its_rows_and_columns():
+    titles = [_frame_title(t, 25) for t in STRIP_FRAMES]
+    assert titles == ["observed t-12", "observed t", "predicted t+1", "predicted t+5", "predicted t+10",
+                      "predicted t+20", "predicted t+30"]
+    rows = ["video", "PHD+T", "JAT w/o bias", "ZeroMotion"]
+    cells = [[np.full((STRIP_SIZE, STRIP_SIZE, 3), 40 * r + c, np.uint8) for c in range(len(titles))]
+             for r in range(len(rows))]
+    image = _titled(cells, rows, titles)
+    top, left = image.shape[0] - STRIP_SIZE * len(rows), image.shape[1] - STRIP_SIZE * len(titles)
+    assert 10 < top < 60 and 50 < left < 200, (top, left)
+    np.testing.assert_array_equal(image[top:, left:], np.concatenate([np.concatenate(r, axis=1) for r in cells]))
+    ink = image.min(axis=2) < 128
+    for column in range(len(titles)):  # each title within its own column, none empty
+        band = ink[:top, left + column * STRIP_SIZE: left + (column + 1) * STRIP_SIZE]
+        assert band.any() and not band[:, 0].any() and not band[:, -1].any(), titles[column]
+    for row in range(len(rows)):
+        assert ink[top + row * STRIP_SIZE: top + (row + 1) * STRIP_SIZE, :left].any(), rows[row]
+    assert not ink[:top, :left].any()  # the corner stays blank
