@@ -158,7 +158,7 @@ def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str |
                  progress: bool = True) -> Frames:
     """Render, augment and crop every clip of ``config`` (module docstring); cached in ``cache_dir`` when given
     (a file named by a hash of the config and of its motion files' joints, written atomically)."""
-    clips = [mocap.load_clip_file(spec) for spec in config.clips]
+    clips = [mocap.shared_clip(spec) for spec in config.clips]
     path = None if cache_dir is None else _cache_file(config, clips, Path(cache_dir))
     if path is not None and path.is_file():
         with np.load(path) as stored:

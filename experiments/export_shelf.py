@@ -3,8 +3,8 @@
     python -m experiments.export_shelf --data-root ../shared/data --out runs/shelf_files
 
 Writes OUT/calibration (the Shelf calibration, in --calibration-format: EasyMocap's intri.yml + extri.yml by
-default, or calibration.toml or calibration.json in that folder) and OUT/keypoints (the real OpenPose detections of actorsGT frames 300..600, --quick: 300..359, of the 5
-cameras, in --keypoint-format: OpenPose JSON folders OUT/keypoints/<camera>/<frame>_keypoints.json by default,
+default, or calibration.toml or calibration.json in that folder) and OUT/keypoints (the real OpenPose detections of
+actorsGT frames 300..600, --quick: 300..359, of the 5 cameras, in --keypoint-format: OpenPose JSON folders OUT/keypoints/<camera>/<frame>_keypoints.json by default,
 or COCO keypoint results OUT/keypoints/<camera>.json), camera names "0".."4", files named by actorsGT frame.
 ``python -m experiments.reconstruct --calibration OUT/calibration --detections OUT/keypoints`` then runs the
 pipeline on them as on any recording, and ``python -m experiments.shelf_eval --pred`` scores its predictions.

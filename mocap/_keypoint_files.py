@@ -102,6 +102,16 @@ class KeypointDetections(NamedTuple):
     dropped_frames: tuple[int, ...]
     """``frames="name"``: the frame numbers some view has but not all, left out; empty for ``"index"``."""
 
+    @property
+    def frame_numbers(self) -> np.ndarray:
+        """Each frame's number, as ``frames="name"`` aligns them: the last integer of its name when every name has
+        one and they increase (OpenPose's ``000300_keypoints.json`` is frame 300; a COCO image_id), else its
+        position 0, 1, ... (int64)."""
+        numbers = [_name_number(name) for name in self.frame_names]
+        if None not in numbers and all(a < b for a, b in zip(numbers, numbers[1:])):
+            return np.array(numbers, np.int64)
+        return np.arange(len(self.frame_names), dtype=np.int64)
+
 
 # ---------------------------------------------------------------------------------------------
 # Conversion
@@ -275,11 +285,17 @@ def _keypoint_format(per_view: list[list[_Frame]], keypoint_format: str) -> str:
     return "unknown" if expected is None else expected
 
 
+def _name_number(name: str) -> int | None:
+    """The frame number in a frame's name: its last integer (None: there is none)."""
+    digits = re.findall(r"[0-9]+", name)
+    return int(digits[-1]) if digits else None
+
+
 def _frame_number(frame: _Frame) -> int:
-    digits = re.findall(r"[0-9]+", frame.name)
-    if not digits:
+    number = _name_number(frame.name)
+    if number is None:
         raise DetectionFileError(f"{frame.where}: no frame number in the name {frame.name!r} (frames='name')")
-    return int(digits[-1])
+    return number
 
 
 def load_keypoint_detections(

@@ -15,7 +15,6 @@ from numpy.testing import assert_allclose
 import geometry
 import jcsat
 import mocap
-from experiments.reconstruct_study import frame_numbers
 
 REPO = Path(__file__).resolve().parents[1]
 BVH_TOLERANCE_M = 2e-6
@@ -117,7 +116,7 @@ def test_shelf_export_reads_back_to_the_main_jobs_inputs(data_root, tmp_path, ke
     for field, exact in zip(calibration.rig, rig):
         np.testing.assert_array_equal(np.asarray(field), np.asarray(exact))  # bit for bit: same decisions
     detections, frames = mocap.load_shelf_detections(data_root)
-    assert frame_numbers(read.frame_names).tolist() == frames[:60].tolist()
+    assert read.frame_numbers.tolist() == frames[:60].tolist()
     coco = [geometry.BODY25.index(name) for name in geometry.COCO17.joints]
     for f in range(60):
         for view in range(5):
@@ -127,6 +126,9 @@ def test_shelf_export_reads_back_to_the_main_jobs_inputs(data_root, tmp_path, ke
 
 
 def test_frame_numbers_come_from_the_names_when_they_all_have_increasing_ones():
+    def frame_numbers(names):
+        return mocap.KeypointDetections([], (), names, "BODY25", ()).frame_numbers
+
     assert frame_numbers(("000300_keypoints", "cam1_000301_keypoints")).tolist() == [300, 301]
     assert frame_numbers(("b", "a")).tolist() == [0, 1]
     assert frame_numbers(("img_5", "img_3")).tolist() == [0, 1]

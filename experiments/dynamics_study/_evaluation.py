@@ -68,7 +68,7 @@ def run_experiment(out: str | Path, backbone, models: Mapping[str, nnx.Module], 
     long_enough = [c for c in range(len(config.data.clips))
                    if np.max(frames.frame[frames.clip == c]) + 1 >= config.length]
     shown = max(long_enough, key=lambda c: np.max(frames.person[frames.clip == c]))
-    strip = write_strip(backbone, models, body, config, mocap.load_clip_file(config.data.clips[shown]))
+    strip = write_strip(backbone, models, body, config, mocap.shared_clip(config.data.clips[shown]))
     cv2.imwrite(str(out / "strip.png"), strip[..., ::-1])
     log({"event": "dynamics_experiment", "seconds": seconds})
     return results

@@ -18,15 +18,15 @@ person (a track of the pipeline), in :data:`geometry.SHELF15` joints, metres, wo
   reprojected into the views, with a legend;
 - ``summary.json`` (inputs, people, frames, timings), ``config.json`` and ``log.jsonl``.
 
-Frame numbers: the integer in each frame's file name when every name has one and they increase (OpenPose's
-``000300_keypoints.json`` is frame 300; a COCO ``image_id``), else the position 0, 1, ...
+Frame numbers: :attr:`mocap.KeypointDetections.frame_numbers`, the integer in each frame's file name when every name
+has one and they increase (OpenPose's ``000300_keypoints.json`` is frame 300; a COCO ``image_id``), else the
+position 0, 1, ...
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -103,16 +103,6 @@ class ReconstructConfig:
             raise ValueError(f"--window-stride must be >= 1, got {self.window_stride}")
 
 
-def frame_numbers(names: tuple[str, ...]) -> np.ndarray:
-    """The integer in each frame name when every name has one and they increase, else 0, 1, ... (module docstring)."""
-    found = [re.findall(r"\d+", name) for name in names]
-    if all(found):
-        numbers = np.array([int(digits[-1]) for digits in found], np.int64)
-        if np.all(np.diff(numbers) > 0):
-            return numbers
-    return np.arange(len(names), dtype=np.int64)
-
-
 def write_keypoints3d(folder: Path, frames: np.ndarray, persons: np.ndarray, joints: np.ndarray,
                       present: np.ndarray) -> None:
     """One EasyMocap-style ``keypoints3d`` JSON file per frame (module docstring); joints (P, F, 15, 3) in metres."""
@@ -177,7 +167,7 @@ def run_reconstruction(
                                             metres_per_unit=config.calibration_unit)
     keypoints = mocap.load_keypoint_detections(config.detections, views=calibration.names,
                                                keypoint_format=config.keypoint_format, frames=config.frames)
-    frames = frame_numbers(keypoints.frame_names)
+    frames = keypoints.frame_numbers
     model = (jcsat.load_model(jcsat.SHIPPED_MODEL if config.model is None else config.model)
              if config.method == "jcsat" else None)
     seconds["read"] = time.perf_counter() - tick
