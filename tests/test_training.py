@@ -80,6 +80,35 @@ def test_model_store_round_trip_and_mismatch(tmp_path):
         training.load_model_state(tmp_path / "empty", lambda f: model)
 
 
+def test_models_stored_in_float16_load_in_the_models_precision(tmp_path):
+    model = nnx.Linear(3, 2, rngs=nnx.Rngs(1))
+    config = {"in_features": 3, "out_features": 2}
+    training.save_model(tmp_path / "full", config, nnx.state(model))
+    training.save_model(tmp_path / "half", config, nnx.state(model), dtype="float16")
+    with np.load(tmp_path / "half" / "state.npz") as stored:
+        assert {array.dtype for array in stored.values()} == {np.dtype(np.float16)}
+    loaded = training.load_model_state(tmp_path / "half", _linear)
+    assert loaded.kernel[...].dtype == jnp.float32
+    half_kernel = np.asarray(model.kernel[...]).astype(np.float16).astype(np.float32)
+    assert_array_equal(np.asarray(loaded.kernel[...]), half_kernel)
+    assert not np.array_equal(half_kernel, np.asarray(model.kernel[...]))  # the cast happened
+
+    # A float32 model folder rewritten in place: the same files as saving in float16, the config kept.
+    training.store_model_as(tmp_path / "full", "float16")
+    for name in ("config.json", "state.npz"):
+        assert (tmp_path / "full" / name).read_bytes() == (tmp_path / "half" / name).read_bytes()
+    assert sorted(p.name for p in (tmp_path / "full").iterdir()) == ["config.json", "state.npz"]
+
+    big = nnx.Linear(3, 2, rngs=nnx.Rngs(1))
+    big.kernel[...] = big.kernel[...].at[0, 0].set(1e5)
+    with pytest.raises(ValueError, match=r"array .*kernel.* does not fit in float16 \(largest magnitude 1e\+05\)"):
+        training.save_model(tmp_path / "big", config, nnx.state(big), dtype="float16")
+    with pytest.raises(ValueError, match="storage dtype must be one of float32, float16, got 'int8'"):
+        training.store_model_as(tmp_path / "full", "int8")
+    with pytest.raises(FileNotFoundError, match="nothing is not a saved model folder: no config.json, state.npz"):
+        training.store_model_as(tmp_path / "nothing", "float16")
+
+
 def test_dropout():
     x = jnp.ones((20_000,))
     assert training.dropout(x, 0.25, None) is x
@@ -176,8 +205,8 @@ def test_damaged_model_files_name_the_file_and_array(tmp_path):
     with pytest.raises(ValueError, match=rf"state.npz does not match .* array {re.escape(kernel)} is float32\[3, 1\], "
                                          r"the model expects float32\[3, 2\]"):
         training.load_model_state(folder, _linear)
-    np.savez(folder / "state.npz", **arrays | {kernel: arrays[kernel].astype(np.float16)})  # wrong dtype
-    with pytest.raises(ValueError, match=rf"array {re.escape(kernel)} is float16\[3, 2\]"):
+    np.savez(folder / "state.npz", **arrays | {kernel: arrays[kernel].astype(np.int32)})  # wrong dtype
+    with pytest.raises(ValueError, match=rf"array {re.escape(kernel)} is int32\[3, 2\]"):
         training.load_model_state(folder, _linear)
     (folder / "state.npz").write_bytes(state[: len(state) // 2])
     with pytest.raises(ValueError, match=rf"{re.escape(str(folder / 'state.npz'))} cannot be read \(truncated"):
@@ -189,3 +218,19 @@ def test_damaged_model_files_name_the_file_and_array(tmp_path):
     (folder / "config.json").write_text(config)
     loaded = training.load_model_state(folder, _linear)
     assert_array_equal(np.asarray(loaded.kernel[...]), np.asarray(model.kernel[...]))
+
+
+def test_store_models_command(tmp_path, capsys):
+    from experiments import store_models
+
+    model = nnx.Linear(3, 2, rngs=nnx.Rngs(1))
+    training.save_model(tmp_path / "m", {"in_features": 3, "out_features": 2}, nnx.state(model))
+    with pytest.raises(SystemExit) as exit_:
+        store_models._cli.run(store_models.main, store_models.Config, argv=[str(tmp_path / "m")])
+    assert exit_.value.code == 0 and "(float16)" in capsys.readouterr().out
+    with np.load(tmp_path / "m" / "state.npz") as stored:
+        assert {array.dtype for array in stored.values()} == {np.dtype(np.float16)}
+    with pytest.raises(SystemExit) as exit_:  # every folder is checked before any is rewritten
+        store_models._cli.run(store_models.main, store_models.Config, argv=[str(tmp_path / "m"), str(tmp_path)])
+    assert exit_.value.code == 2
+    assert f"{tmp_path} is not a saved model folder: no config.json, state.npz" in capsys.readouterr().err

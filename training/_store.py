@@ -18,7 +18,7 @@ from flax import nnx
 from ._files import _write_temporary
 from ._loop import to_jsonable
 
-__all__ = ["load_model_state", "save_model"]
+__all__ = ["STORAGE_DTYPES", "load_model_state", "save_model", "store_model_as"]
 
 M = TypeVar("M", bound=nnx.Module)
 
@@ -28,31 +28,84 @@ def _storable(state: Any) -> Any:
     return nnx.filter_state(state, nnx.Not(nnx.RngState))
 
 
-def save_model(path: str | Path, config: Any, state: Any) -> None:
-    """Write a model's config dataclass and its NNX ``state`` (for example ``nnx.merge_state(params, rest)``).
+STORAGE_DTYPES = ("float32", "float16")
+"""What :func:`save_model` and :func:`store_model_as` may store a model's floating-point arrays in: float16 halves
+the files (the project ships its larger models so); loading casts them back to the model's own dtype."""
+
+
+def save_model(path: str | Path, config: Any, state: Any, *, dtype: str | None = None) -> None:
+    """Write a model's config dataclass and its NNX ``state`` (for example ``nnx.merge_state(params, rest)``);
+    ``dtype`` (one of :data:`STORAGE_DTYPES`) stores every floating-point array in that precision.
 
     Both files are written in full to temporary files in the folder and only then renamed into place, so a
     killed run leaves the previous model (or none), never a truncated file."""
     path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
     config_text = (json.dumps(to_jsonable(config), indent=2) + "\n").encode()
     leaves = jax.tree_util.tree_flatten_with_path(_storable(state))[0]
     arrays = {jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves}
+    _write_model(path, {"state.npz": _stored_arrays(arrays, dtype, path), "config.json": config_text})
+
+
+def store_model_as(path: str | Path, dtype: str) -> None:
+    """Rewrite the model folder ``path`` (:func:`save_model`) with its floating-point arrays in ``dtype`` (one of
+    :data:`STORAGE_DTYPES`), atomically; its config is kept. How a trained model becomes a compact shipped one."""
+    path = Path(path)
+    _check_model_folder(path)
+    _read_config(path / "config.json")
+    _write_model(path, {"state.npz": _stored_arrays(_read_arrays(path / "state.npz"), dtype, path)})
+
+
+def _stored_arrays(arrays: dict[str, np.ndarray], dtype: str | None, path: Path) -> dict[str, np.ndarray]:
+    """``arrays`` with the floating-point ones cast to ``dtype`` (``None``: as they are); refuses a value that
+    overflows it rather than storing an infinity."""
+    if dtype is None:
+        return arrays
+    if dtype not in STORAGE_DTYPES:
+        raise ValueError(f"storage dtype must be one of {', '.join(STORAGE_DTYPES)}, got {dtype!r}")
+    stored = {}
+    for name, array in arrays.items():
+        if np.issubdtype(array.dtype, np.floating):
+            with np.errstate(over="ignore"):  # an overflow is refused just below, by name
+                cast = array.astype(dtype)
+            if not np.array_equal(np.isfinite(cast), np.isfinite(array)):
+                raise ValueError(f"{path}: array {name} does not fit in {dtype} (largest magnitude "
+                                 f"{np.nanmax(np.abs(array)):.4g})")
+            array = cast
+        stored[name] = array
+    return stored
+
+
+def _write_model(path: Path, contents: dict[str, dict[str, np.ndarray] | bytes]) -> None:
+    """Write each named file of a model folder (arrays: ``state.npz``; bytes: as they are) to a temporary file,
+    then rename them all into place, in the order given."""
+    path.mkdir(parents=True, exist_ok=True)
+
+    def writer(content: dict[str, np.ndarray] | bytes) -> Callable[[Any], None]:
+        if isinstance(content, bytes):
+            return lambda file: file.write(content)
+        return lambda file: np.savez(file, **content)
+
     written = {}
     try:
-        written["config.json"] = _write_temporary(path / "config.json", lambda file: file.write(config_text))
-        written["state.npz"] = _write_temporary(path / "state.npz", lambda file: np.savez(file, **arrays))
+        for name, content in contents.items():
+            written[name] = _write_temporary(path / name, writer(content))
     except BaseException:
         for temporary in written.values():
             temporary.unlink()
         raise
-    for name in ("state.npz", "config.json"):
+    for name in contents:
         os.replace(written[name], path / name)
     directory = os.open(path, os.O_RDONLY)
     try:
         os.fsync(directory)  # the renames themselves reach the disk
     finally:
         os.close(directory)
+
+
+def _check_model_folder(path: Path) -> None:
+    missing = [name for name in ("config.json", "state.npz") if not (path / name).is_file()]
+    if missing:
+        raise FileNotFoundError(f"{path} is not a saved model folder: no {', '.join(missing)}")
 
 
 def _read_config(path: Path) -> dict[str, Any]:
@@ -76,11 +129,10 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
 
 def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> M:
     """The model saved by :func:`save_model` at ``path``: ``build(config fields)`` makes a fresh model of the
-    right structure (lists in the JSON become tuples), then its variables are replaced by the stored ones."""
+    right structure (lists in the JSON become tuples), then its variables are replaced by the stored ones (arrays
+    stored in another floating-point precision are cast to the model's)."""
     path = Path(path)
-    missing = [name for name in ("config.json", "state.npz") if not (path / name).is_file()]
-    if missing:
-        raise FileNotFoundError(f"{path} is not a saved model folder: no {', '.join(missing)}")
+    _check_model_folder(path)
     fields = _read_config(path / "config.json")
     fields = {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
     # The structure is traced abstractly: initialising every layer eagerly only to overwrite it cost most of a load.
@@ -94,10 +146,11 @@ def load_model_state(path: str | Path, build: Callable[[dict[str, Any]], M]) -> 
         raise ValueError(f"{state_path} does not match the model of its config.json: no {absent[:3]}")
     for key, expected in leaves:
         name, array = jax.tree_util.keystr(key), arrays[jax.tree_util.keystr(key)]
-        if array.shape != expected.shape or array.dtype != expected.dtype:
+        recast = np.issubdtype(array.dtype, np.floating) and jnp.issubdtype(expected.dtype, jnp.floating)
+        if array.shape != expected.shape or (array.dtype != expected.dtype and not recast):
             raise ValueError(f"{state_path} does not match the model of its config.json: array {name} is "
                              f"{array.dtype}{list(array.shape)}, the model expects {expected.dtype}{list(expected.shape)}")
-    values = [jnp.asarray(arrays[jax.tree_util.keystr(k)]) for k, _ in leaves]
+    values = [jnp.asarray(arrays[jax.tree_util.keystr(k)], dtype=expected.dtype) for k, expected in leaves]
     nnx.update(model, jax.tree_util.tree_unflatten(treedef, values))
     if jax.tree.leaves(nnx.state(model, nnx.RngState)):
         # The RNG keys and counters are not stored: the ones a fresh build has (one jitted build, the rest of
