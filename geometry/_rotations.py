@@ -243,7 +243,8 @@ def quaternion_slerp(q0: Float[ArrayLike, "*#batch 4"], q1: Float[ArrayLike, "*#
     dot = jnp.sum(q0 * q1, axis=-1)
     q1 = jnp.where((dot < 0)[..., None], -q1, q1)
     dot = jnp.abs(dot)
-    near = dot > 1.0 - 1e-9
+    # 1 - 1e-9 is 1.0 in float32: equal quaternions (dot exactly 1) would divide 0 by 0. Scale to the precision.
+    near = dot > 1.0 - max(1e-9, 8 * float(jnp.finfo(dot.dtype).eps))
     omega = jnp.arccos(jnp.where(near, 0.5, jnp.minimum(dot, 1.0)))
     w0 = jnp.where(near, 1.0 - t, jnp.sin((1.0 - t) * omega) / jnp.sin(omega))
     w1 = jnp.where(near, t, jnp.sin(t * omega) / jnp.sin(omega))

@@ -128,6 +128,10 @@ def test_slerp_matches_scipy():
     assert_allclose(np.asarray(ours), ref, atol=1e-13)
     same = np.asarray(jg.quaternion_slerp(q[0], q[0], times))
     assert_allclose(same, np.broadcast_to(jg.matrix_to_quaternion(keys[0].as_matrix()), same.shape), atol=1e-15)
+    # In float32 too (equal quaternions once gave 0/0 there: mocap.resample_motion at 120 -> 25 Hz).
+    single = np.asarray(jg.quaternion_slerp(q[0].astype(np.float32), q[0].astype(np.float32), times.astype(np.float32)))
+    assert single.dtype == np.float32
+    assert_allclose(single, np.broadcast_to(q[0] * np.sign(q[0][0]), single.shape), atol=1e-6)
 
 
 @pytest.mark.parametrize("order", TAIT_BRYAN + ("ZXZ", "XYX"))
