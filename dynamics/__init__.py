@@ -7,6 +7,9 @@
 - :class:`CausalTCN`: PHD's temporal encoder (f_movie, f_AR), strictly causal.
 - :class:`PosePrior`, :func:`lsgan_discriminator_loss`, :func:`lsgan_generator_loss`: HMR's 25 LSGAN
   discriminators on rotations and shape.
+- :class:`PoseForecaster` (:data:`FORECASTERS`, :func:`train_forecasters`, :func:`load_forecasters`): the same
+  models conditioned on observed 3D poses, on the CMU-Mocap benchmark's motion (:func:`pose_frames`), beside
+  :func:`zero_motion_forecast` and :func:`constant_velocity_forecast` (``python -m experiments.dynamics_forecast``).
 
 Sizes are constructor arguments with CPU-sized defaults; each private module lists its public names in
 ``__all__`` and they are re-exported here. The evaluation's orchestration, tables and figures
@@ -46,6 +49,11 @@ from ._evaluate import zero_motion as zero_motion
 from ._evaluate import EvalConfig as EvalConfig
 from ._evaluate import HORIZONS as HORIZONS
 from ._evaluate import METRICS as METRICS
+from ._forecast import constant_velocity_forecast as constant_velocity_forecast
+from ._forecast import forecast_joints as forecast_joints
+from ._forecast import zero_motion_forecast as zero_motion_forecast
+from ._forecast import ForecasterConfig as ForecasterConfig
+from ._forecast import PoseForecaster as PoseForecaster
 from ._hmr import mean_params as mean_params
 from ._hmr import HMRHead as HMRHead
 from ._hmr import SMPLParams as SMPLParams
@@ -61,14 +69,23 @@ from ._losses import FrameTargets as FrameTargets
 from ._losses import LossWeights as LossWeights
 from ._losses import PENETRATION_POINTS as PENETRATION_POINTS
 from ._phdt import crop_roots as crop_roots
+from ._phdt import last_frame as last_frame
 from ._phdt import params_to_joints as params_to_joints
 from ._phdt import Observation as Observation
 from ._phdt import PHDT as PHDT
 from ._phdt import PHDTConfig as PHDTConfig
 from ._phdt import Rollout as Rollout
+from ._poses import canonical_window as canonical_window
+from ._poses import pose_features as pose_features
+from ._poses import pose_frames as pose_frames
+from ._poses import FORECAST_FPS as FORECAST_FPS
+from ._poses import FORECAST_HORIZONS_MS as FORECAST_HORIZONS_MS
+from ._poses import POSE_FEATURES as POSE_FEATURES
+from ._poses import PoseFrames as PoseFrames
 from ._prior import lsgan_discriminator_loss as lsgan_discriminator_loss
 from ._prior import lsgan_generator_loss as lsgan_generator_loss
 from ._prior import PosePrior as PosePrior
+from ._shipped import SHIPPED_FORECASTERS as SHIPPED_FORECASTERS
 from ._shipped import SHIPPED_MODEL as SHIPPED_MODEL
 from ._shipped import SHIPPED_TRANSFORMERS as SHIPPED_TRANSFORMERS
 from ._tcn import CausalTCN as CausalTCN
@@ -79,6 +96,14 @@ from ._train import train as train
 from ._train import BackboneConfig as BackboneConfig
 from ._train import StageConfig as StageConfig
 from ._train import TrainConfig as TrainConfig
+from ._train_forecast import canonical_windows as canonical_windows
+from ._train_forecast import forecast_split as forecast_split
+from ._train_forecast import initial_forecaster as initial_forecaster
+from ._train_forecast import load_forecasters as load_forecasters
+from ._train_forecast import train_forecaster as train_forecaster
+from ._train_forecast import train_forecasters as train_forecasters
+from ._train_forecast import FORECASTERS as FORECASTERS
+from ._train_forecast import ForecastTrainConfig as ForecastTrainConfig
 from ._train_jat import as_multi_person as as_multi_person
 from ._train_jat import load_transformers as load_transformers
 from ._train_jat import train_all as train_all

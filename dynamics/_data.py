@@ -33,6 +33,8 @@ import geometry
 import mocap
 import training
 
+from ._poses import PoseFrames
+
 __all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "DataConfig", "Frames",
            "build_frames", "check_validation_apart", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
            "window_starts", "without_crops"]
@@ -211,8 +213,9 @@ def without_crops(frames: Frames) -> Frames:
     return frames._replace(crops=np.zeros(frames.num_frames, np.uint8))
 
 
-def window_starts(frames: Frames, length: int, stride: int = 1) -> Int[np.ndarray, "N"]:
-    """First rows of every window of ``length`` consecutive frames of one track, every ``stride`` frames."""
+def window_starts(frames: Frames | PoseFrames, length: int, stride: int = 1) -> Int[np.ndarray, "N"]:
+    """First rows of every window of ``length`` consecutive frames of one track (video frames, or 3D motion),
+    every ``stride`` frames."""
     if length < 1 or stride < 1:
         raise ValueError(f"length and stride must be >= 1, got {length} and {stride}")
     starts = []
@@ -229,7 +232,7 @@ def gather_windows(columns: Columns, starts: Int[np.ndarray, "B"], length: int) 
     return jax.tree.map(lambda column: column[index], columns)
 
 
-def scene_windows(frames: Frames, length: int, stride: int = 1, people: int | None = None,
+def scene_windows(frames: Frames | PoseFrames, length: int, stride: int = 1, people: int | None = None,
                   ) -> tuple[Int[np.ndarray, "W N length"], Bool[np.ndarray, "W N"]]:
     """Windows of ``length`` consecutive frames of every video variant with all its people, every ``stride``
     frames: the rows of each person and frame (person-major, as the multi-person models take scenes) and which
@@ -255,3 +258,4 @@ def scene_windows(frames: Frames, length: int, stride: int = 1, people: int | No
     if not windows:
         return np.zeros((0, people, length), np.int64), np.zeros((0, people), bool)
     return np.stack(windows).astype(np.int64), np.stack(present)
+

@@ -40,7 +40,7 @@ import geometry
 from ._attention import GPTLayer, InputEncoder, KeyValues, agent_masks
 from ._canonical import JointAwareBias, canonical_features
 from ._hmr import HMRHead, SMPLParams, mean_params
-from ._phdt import Observation, Rollout, crop_roots, params_to_joints
+from ._phdt import Observation, Rollout, crop_roots, last_frame, params_to_joints
 
 __all__ = ["JAT", "JATConfig", "box_features", "scene_tokens"]
 
@@ -65,6 +65,9 @@ class JATConfig:
     joint_aware_bias: bool = True
     """False: f_AR's attention without the bias (Table 5.5's ablation)."""
     num_shapes: int = 3
+    decode_from_previous: bool = False
+    """The rollout's f_HMR refines the previous frame's pose instead of the mean pose (as
+    :attr:`~dynamics.PHDTConfig.decode_from_previous`)."""
 
     def __post_init__(self) -> None:
         if self.receptive_field < 1:
@@ -227,7 +230,7 @@ class JAT(nnx.Module):
         query_people = jnp.broadcast_to(jnp.arange(scene[-1]), present.shape)
 
         def advance(carry, step):
-            history, encoded, kv, joints, rotations, root = carry
+            history, encoded, kv, joints, rotations, root, previous = carry
             latest = observed_frames - 1 + step
             if not cached:
                 encoded = self.ar_encoder(history, jnp.arange(length))
@@ -242,7 +245,8 @@ class JAT(nnx.Module):
             following = (current + self.ar_output(z)).astype(dtype)
             temporal, joint_features = following[..., :D], following[..., D:]
             root = root + self.translation(joint_features).astype(root.dtype)
-            params = self.hmr(temporal)
+            params = self.hmr(temporal, start=previous if self.config.decode_from_previous else None)
+            params = jax.tree.map(lambda new, old: new.astype(old.dtype), params, previous)
             new_joints = params_to_joints(body, params, root)
             new_inputs = jnp.concatenate([temporal, self.encode_joints(new_joints).astype(dtype)], axis=-1)
             new_encoded = self.ar_encoder(new_inputs[..., None, :], latest + 1 + jnp.zeros((1,), int))
@@ -255,9 +259,10 @@ class JAT(nnx.Module):
                 new_kv = self.ar.key_values(new_encoded)
                 kv = KeyValues(*(write(cache, value[..., 0, :], -2) for cache, value in zip(kv, new_kv)))
                 encoded = write(encoded, new_encoded[..., 0, :], -2)
-            return (history, encoded, kv, joints, rotations, root), (temporal, joint_features, params, root)
+            return (history, encoded, kv, joints, rotations, root, params), (temporal, joint_features, params, root)
 
-        carry = (history, encoded, kv, pad(joints, -3), pad(rotations, -4), observed.root[..., -1, :])
+        carry = (history, encoded, kv, pad(joints, -3), pad(rotations, -4), observed.root[..., -1, :],
+                 last_frame(observed.params))
         _, (temporal, joint_features, params, roots) = jax.lax.scan(advance, carry, jnp.arange(horizon))
         move = lambda x, axis: jnp.moveaxis(x, 0, axis)  # noqa: E731
         params = SMPLParams(move(params.rot6d, -3), move(params.betas, -2), move(params.camera, -2))

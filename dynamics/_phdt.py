@@ -32,7 +32,7 @@ import geometry
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._tcn import CausalTCN
 
-__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "params_to_joints"]
+__all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "last_frame", "params_to_joints"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +49,10 @@ class PHDTConfig:
     channels_per_group: int = 128
     delta_offsets: tuple[int, ...] = (-5, -10)
     num_shapes: int = 3
+    decode_from_previous: bool = False
+    """The rollout's f_HMR refines the previous frame's pose instead of the mean pose (the 3D forecasters, whose
+    observed poses are exact: each frame is then the last plus a change, as HMMR's delta predictors start from
+    the current estimate). False: the thesis' decoding, every frame from the mean."""
 
     def __post_init__(self) -> None:
         for channels in (self.feature_dim, self.feature_dim + self.joint_dim):
@@ -91,6 +95,11 @@ def params_to_joints(body: geometry.BodyModel, params: SMPLParams, root: Float[A
         jnp.zeros(3, rotations.dtype))
     joints = flat.reshape(*batch, 24, 3)
     return joints - joints[..., :1, :] + root[..., None, :]
+
+
+def last_frame(params: SMPLParams) -> SMPLParams:
+    """The parameters of the last frame of ``params`` (frames on the axis before each field's own)."""
+    return SMPLParams(params.rot6d[..., -1, :, :], params.betas[..., -1, :], params.camera[..., -1, :])
 
 
 def crop_roots(params: SMPLParams, boxes: Float[Array, "*b 4"], K: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
@@ -176,15 +185,24 @@ class PHDT(nnx.Module):
         window = jnp.concatenate([observed.temporal, observed.joint_features], axis=-1)[..., -width:, :]
 
         def advance(carry, _):
-            window, root = carry
+            window, root, params = carry
             # The carry keeps its dtypes whatever the parameters' (float32 shipped models under jax_enable_x64).
             following = self.ar(window)[..., -1, :].astype(window.dtype)
             joint_features = following[..., self.config.feature_dim:]
             root = root + self.translation(joint_features).astype(root.dtype)
             window = jnp.concatenate([window[..., 1:, :], following[..., None, :]], axis=-2)
-            return (window, root), (following, root)
+            if self.config.decode_from_previous:
+                params = jax.tree.map(lambda new, old: new.astype(old.dtype),
+                                      self.hmr(following[..., :self.config.feature_dim], start=params), params)
+            return (window, root, params), (following, root, params)
 
-        _, (predicted, roots) = jax.lax.scan(advance, (window, observed.root[..., -1, :]), length=horizon, unroll=True)
+        carry = (window, observed.root[..., -1, :], last_frame(observed.params))
+        _, (predicted, roots, decoded) = jax.lax.scan(advance, carry, length=horizon, unroll=True)
         predicted, roots = jnp.moveaxis(predicted, 0, -2), jnp.moveaxis(roots, 0, -2)
         temporal = predicted[..., :self.config.feature_dim]
-        return Rollout(temporal, predicted[..., self.config.feature_dim:], self.regress(temporal, key), roots)
+        if self.config.decode_from_previous:
+            params = SMPLParams(jnp.moveaxis(decoded.rot6d, 0, -3), jnp.moveaxis(decoded.betas, 0, -2),
+                                jnp.moveaxis(decoded.camera, 0, -2))
+        else:
+            params = self.regress(temporal, key)
+        return Rollout(temporal, predicted[..., self.config.feature_dim:], params, roots)

@@ -217,7 +217,7 @@ _ADAM = optax.scale_by_adam()
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
-def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective: Callable, config: TrainConfig,
+def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective: Callable, config: Any,
                 replicated: NamedSharding, rest: Any, body: geometry.BodyModel, state: TrainState, batch: Any,
                 key: jax.Array, learning_rate: ArrayLike, discriminator_lr: ArrayLike
                 ) -> tuple[TrainState, dict[str, jax.Array]]:
@@ -231,7 +231,7 @@ def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective:
 
     (total, (terms, fake)), grads = jax.value_and_grad(loss, has_aux=True)(state.params)
     direction, opt = _ADAM.update(grads, state.opt, state.params)
-    targets = batch if isinstance(batch, Frames) else batch[1]
+    targets = batch if hasattr(batch, "rotations") else batch[1]  # rows, or (features, rows)
     fake_rotations = jax.lax.stop_gradient(geometry.rotation_6d_to_matrix(fake.rot6d)).reshape(-1, 24, 3, 3)
     fake_betas = jax.lax.stop_gradient(fake.betas).reshape(-1, fake.betas.shape[-1])
 
@@ -249,11 +249,13 @@ def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective:
     return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
 
 
-def _run_stage(name: str, config: TrainConfig, stage: StageConfig, workdir: Path, model: nnx.Module,
+def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model: nnx.Module,
                trainable: Any, objective: Callable, sample: Callable[[jax.Array], Any],
                validate: Callable[[nnx.Module], dict[str, float]], body: geometry.BodyModel, *, resume: bool,
                log: Callable[[dict], None], progress: bool) -> nnx.Module:
-    """Train the ``trainable`` part of ``model`` on ``objective`` (module docstring) and return the model."""
+    """Train the ``trainable`` part of ``model`` on ``objective`` (module docstring) and return the model.
+    ``config``: the run's frozen config (:class:`TrainConfig`, or the transformers' or forecasters' own), whose
+    ``model.num_shapes``, ``seed`` and intervals this reads and which ``objective`` receives."""
     replicated, batch_sharding = training.data_parallel_shardings(stage.batch_size)
     graphdef, params, rest = nnx.split(model, trainable, ...)
     prior_graphdef, prior_params = nnx.split(PosePrior(config.model.num_shapes, rngs=nnx.Rngs(config.seed + 1)))

@@ -82,6 +82,17 @@ def clips_option(clips: Sequence[str], data_root: str | os.PathLike | None) -> t
         raise ValueError(f"--clips {error}" + ("" if root else " (relative paths need --data-root)")) from None
 
 
+def jsonl_log(out: Path) -> Callable[[dict], None]:
+    """``log(record)``: appends ``record`` as one JSON line to ``out/log.jsonl``, the file opened for each record so
+    that every line written survives a kill."""
+
+    def log(record: dict) -> None:
+        with (out / "log.jsonl").open("a") as stream:
+            stream.write(json.dumps(record) + "\n")
+
+    return log
+
+
 @contextlib.contextmanager
 def stages(out: Path, desc: str, names: Sequence[str]
            ) -> Iterator[tuple[Callable[[dict], None], Callable[[str], None]]]:
@@ -90,10 +101,7 @@ def stages(out: Path, desc: str, names: Sequence[str]
     ``stage``; the last stage completes when the block does. The bar is closed on an error too, so that the one-line
     error starts a line of its own."""
 
-    def log(event: dict) -> None:
-        with (out / "log.jsonl").open("a") as stream:
-            stream.write(json.dumps(event) + "\n")
-
+    log = jsonl_log(out)
     with tqdm(total=len(names), desc=desc, unit="stage") as bar:
         started = []
 

@@ -18,7 +18,6 @@ outputs as a whole. Logic: :mod:`experiments.dynamics_study`.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import geometry
@@ -99,11 +98,8 @@ def main(config: Config) -> None:
             else geometry.stand_in_body_model())
     evaluation = config.evaluation()
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
-    with _cli.run_folder(config.out, keep=("train",)) as out, open(out / "log.jsonl", "a") as log_file:
-        def log(record: dict) -> None:
-            log_file.write(json.dumps(record) + "\n")
-            log_file.flush()
-
+    with _cli.run_folder(config.out, keep=("train",)) as out:
+        log = _cli.jsonl_log(out)
         if config.train:
             train_config = dataclasses.replace(TrainConfig(seed=config.seed), **(QUICK_TRAIN if config.quick else {}))
             backbone, phdt = train(train_config, workdir, body, resume=True, log=log, progress=config.progress)

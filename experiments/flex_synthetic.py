@@ -12,7 +12,6 @@ outputs as a whole. Logic: :mod:`experiments.flex_study`.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -62,11 +61,8 @@ def main(config: Config) -> None:
     experiment = dataclasses.replace(config.experiment, clips=config.test_clips(), **{
         name: value for name, value in (QUICK if config.quick else {}).items()
         if getattr(config.experiment, name) == getattr(default, name)})
-    with _cli.run_folder(config.out, keep=("models",)) as out, open(out / "log.jsonl", "a") as log_file:
-        def log(record: dict) -> None:
-            log_file.write(json.dumps(record) + "\n")
-            log_file.flush()
-
+    with _cli.run_folder(config.out, keep=("models",)) as out:
+        log = _cli.jsonl_log(out)
         if config.train:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
             models = train_models(config.out / "models", steps, seed=experiment.seed, log=log)

@@ -230,3 +230,29 @@ def test_dynamics_quick_on_the_shipped_models(tmp_path):
         assert (tmp_path / name).is_file(), name
     markdown = (tmp_path / "results.md").read_text()
     assert "| ZeroMotion |" in markdown and "| MPJAT |" in markdown and "Interpenetration" in markdown
+
+
+# `python -m experiments.dynamics_forecast --quick --data-root DATA --out OUT` on the shipped 3D forecasters (docs/
+# dynamics.md "3D forecasting", on test windows every 25 frames): MPJPE (mm) averaged over the actions of the CMU-Mocap
+# benchmark's test split at 80, 160, 320, 400 and 1000 ms.
+FORECAST_QUICK = {
+    "ZeroMotion": (35.181, 65.944, 112.723, 122.573, 116.026),
+    "Constant velocity": (20.563, 57.050, 142.481, 188.755, 475.941),
+    "PHD+T": (30.103, 53.064, 81.824, 90.575, 120.010),
+    "JAT": (34.811, 62.633, 91.323, 94.626, 124.220),
+    "JAT w/o bias": (35.559, 62.985, 95.458, 100.381, 126.047),
+}
+
+
+def test_dynamics_forecast_quick_on_the_shipped_models(data_root, tmp_path):
+    _run("dynamics_forecast", "--quick", "--data-root", data_root, out=tmp_path)
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["fps"] == 25.0 and results["observed_frames"] == 25 and results["horizon_frames"] == [2, 4, 8, 10, 25]
+    assert results["windows"] == {"basketball": 3, "jumping": 16, "running": 0, "soccer": 4, "walking": 2,
+                                  "walking_extra": 37, "washwindow": 21}
+    measured = {method: tuple(table["average"]) for method, table in results["mpjpe_mm"].items()}
+    assert measured.keys() == FORECAST_QUICK.keys()
+    _assert_table(measured, FORECAST_QUICK)
+    for name in ("results.md", "forecast.png", "run.json", "log.jsonl"):
+        assert (tmp_path / name).is_file(), name
+    assert "No window (file shorter than 50 frames): running." in (tmp_path / "results.md").read_text()

@@ -1,11 +1,16 @@
-"""The dynamics evaluation (``python -m experiments.dynamics``): the models and ZeroMotion on held-out synthetic
+"""The dynamics evaluations: ``python -m experiments.dynamics``, the models and ZeroMotion on held-out synthetic
 videos, written as tables (Tables 5.2-5.11's layout), prediction plots (Fig. 5.1) and a strip of observed and
-predicted meshes rendered into the video frames."""
+predicted meshes rendered into the video frames; ``python -m experiments.dynamics_forecast``, the 3D forecasters
+and two baselines on the CMU-Mocap benchmark's motion, per action and horizon."""
 
 from ._evaluation import run_experiment as run_experiment
 from ._evaluation import write_strip as write_strip
 from ._evaluation import STRIP_FRAMES as STRIP_FRAMES
 from ._evaluation import STRIP_SIZE as STRIP_SIZE
+from ._forecast import forecast_markdown as forecast_markdown
+from ._forecast import plot_forecast as plot_forecast
+from ._forecast import run_forecast_study as run_forecast_study
+from ._forecast import BASELINES as BASELINES
 from ._report import overlay_meshes as overlay_meshes
 from ._report import plot_prediction as plot_prediction
 from ._report import results_markdown as results_markdown

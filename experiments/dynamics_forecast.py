@@ -1,0 +1,83 @@
+"""3D forecasting on the CMU-Mocap benchmark's motion: the thesis' autoregressive models (PHD+T's f_JE/f_AR path,
+JAT, JAT without the Joint-Aware Bias) conditioned on observed 3D poses, against ZeroMotion and constant velocity.
+
+    python -m experiments.dynamics_forecast --data-root ../shared/data --out runs/forecast
+
+Motion: ``<data-root>/cmu_expmap`` at 25 Hz on the body model's 24 joints (:mod:`dynamics._poses`); 25 frames
+observed (1 s), 25 predicted, scored at 80, 160, 320, 400 and 1000 ms per action. ``--split test`` (default)
+scores the benchmark's test files; ``--split validation`` the training files kept out of training (one per
+action), where every choice is made. Without ``--train`` it evaluates the models shipped in
+``dynamics/assets/forecasters`` (or ``--model-dir``); ``--train`` first trains the three into ``OUT/train`` on the
+rest of the train split (resumable: run the same command again after a kill), which is how the shipped ones were
+made. Writes OUT/results.json, results.md, forecast.png, log.jsonl and run.json, replacing OUT's previous outputs
+as a whole (``OUT/train`` is kept). Logic: :mod:`experiments.dynamics_study`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Literal
+
+import geometry
+import mocap
+from dynamics import (SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split, load_forecasters,
+                      train_forecasters)
+from experiments import _cli
+from experiments.dynamics_study import run_forecast_study
+
+QUICK_STRIDE = 25
+QUICK_TRAIN = dict(stage=StageConfig(steps=10, batch_size=4, learning_rate=5e-4, warmup_steps=2),
+                   checkpoint_interval=5, validation_interval=10, log_interval=5)
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    out: Path
+    """Output folder."""
+    data_root: Path | None = None
+    """Folder holding cmu_expmap/ (default: $MVMOCAP_DATA_ROOT)."""
+    split: Literal["test", "validation"] = "test"
+    """test: the benchmark's test files; validation: one training file per action, never trained on."""
+    train: bool = False
+    """Train the three forecasters into OUT/train (resumable) instead of using the shipped ones."""
+    model_dir: Path = SHIPPED_FORECASTERS
+    """Folder with the forecasters (default: the shipped dynamics/assets/forecasters)."""
+    quick: bool = False
+    """Windows every 25 frames instead of every 10; with --train, 10 steps per model (a smoke run)."""
+    seed: int = 0
+    """Training seed (with --train)."""
+    progress: bool = True
+    """Progress bars."""
+
+    def __post_init__(self) -> None:
+        if mocap.find_data_root(self.data_root, "cmu_expmap") is None:
+            raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_expmap/)")
+        if not self.train and not self.model_dir.is_dir():
+            raise ValueError(f"--model-dir {self.model_dir} is not a folder")
+
+
+def main(config: Config) -> None:
+    body = geometry.stand_in_body_model()
+    training_files, validation_files = forecast_split(config.data_root)
+    files = (validation_files if config.split == "validation"
+             else tuple(str(f) for f in mocap.cmu_expmap_files(config.data_root, "test")))
+    workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
+    with _cli.run_folder(config.out, keep=("train",)) as out:
+        log = _cli.jsonl_log(out)
+        if config.train:
+            train_config = dataclasses.replace(ForecastTrainConfig(training_files, validation_files, seed=config.seed),
+                                               **(QUICK_TRAIN if config.quick else {}))
+            models = train_forecasters(train_config, workdir, body, resume=True, log=log, progress=config.progress)
+        else:
+            models = load_forecasters(config.model_dir)
+        summary = run_forecast_study(out, models, body, files, stride=QUICK_STRIDE if config.quick else 10,
+                                     cache_dir=workdir / "data_cache" if config.train else None, log=log,
+                                     progress=config.progress)
+        report = (out / "results.md").read_text()
+    print(report)
+    print(f"wrote {config.out}/results.json, results.md, forecast.png ({summary['seconds']} s)")
+
+
+if __name__ == "__main__":
+    _cli.run(main, Config, description=__doc__)

@@ -1,0 +1,236 @@
+"""3D forecasting from observed poses (dynamics/_poses.py, _forecast.py, _train_forecast.py): the window frame, the
+baselines, the forecasters' interface, the ablation's starting point, the data split, the motion of a real file and
+a training run resumed after a kill."""
+
+import dataclasses
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.testing import assert_allclose, assert_array_equal
+
+import dynamics
+import geometry
+import mocap
+from _training_harness import Killed, assert_same_parameters, kill_at
+
+BODY = geometry.stand_in_body_model()
+TINY_JAT = dynamics.JATConfig(feature_dim=16, temporal_dim=16, joint_dim=8, hmr_hidden=16, hmr_dropout=0.0,
+                              bias_hidden=8)
+TINY_PHDT = dynamics.PHDTConfig(feature_dim=16, joint_dim=16, channels_per_group=16, hmr_hidden=16, hmr_dropout=0.0,
+                                delta_offsets=())
+
+
+def _world_window(seed: int, frames: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """A walking-like window in the z-up world: small random local rotations, the body upright and turned about
+    z, moving forward; joints posed by the body model."""
+    rng = np.random.default_rng(seed)
+    local = geometry.axis_angle_to_matrix(jnp.asarray(rng.normal(0.0, 0.2, (frames, 24, 3))))
+    upright = geometry.axis_angle_to_matrix(jnp.asarray([np.pi / 2, 0.0, 0.0]))  # body y up -> world z up
+    heading = geometry.axis_angle_to_matrix(jnp.asarray([[0.0, 0.0, a] for a in rng.uniform(-np.pi, np.pi, frames)]))
+    rotations = local.at[:, 0].set(heading @ upright @ local[:, 0])
+    translation = np.cumsum(rng.normal(0.0, 0.05, (frames, 3)), axis=0) + [0.0, 0.0, 0.9]
+    pose = jax.vmap(geometry.body_joints, in_axes=(None, 0, None, 0))
+    joints = pose(BODY, rotations, jnp.zeros(BODY.num_shapes), jnp.asarray(translation))
+    return np.asarray(rotations), np.asarray(joints)
+
+
+def _two_people(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (2, L, 24, 3, 3) and joints (2, L, 24, 3) of two people a metre or so apart."""
+    (r0, j0), (r1, j1) = _world_window(seed), _world_window(seed + 1)
+    return np.stack([r0, r1]), np.stack([j0, j1 + [1.0, 0.5, 0.0]])
+
+
+def _yaw(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), angle=st.floats(-np.pi, np.pi), shift=st.tuples(*[st.floats(-5.0, 5.0)] * 3))
+def test_canonical_window_forgets_heading_and_place(seed, angle, shift):
+    rotations, joints = _two_people(seed)  # a scene of two people: both move with the first's frame
+    canonical = dynamics.canonical_window(jnp.asarray(rotations), jnp.asarray(joints), 3)
+    turn = _yaw(angle)
+    moved = (rotations.copy(), joints @ turn.T + np.asarray(shift))
+    moved[0][:, :, 0] = turn @ rotations[:, :, 0]
+    again = dynamics.canonical_window(jnp.asarray(moved[0]), jnp.asarray(moved[1]), 3)
+    for ours, theirs in zip(canonical, again):
+        assert_allclose(np.asarray(theirs), np.asarray(ours), atol=1e-9)
+
+
+def test_canonical_window_is_the_virtual_camera_of_the_last_observed_frame():
+    rotations, joints = _two_people(3)
+    canonical_rotations, canonical_joints = map(np.asarray, dynamics.canonical_window(jnp.asarray(rotations),
+                                                                                      jnp.asarray(joints), 4))
+    last = canonical_joints[0, 4]
+    assert_allclose(last[0], 0.0, atol=1e-12)  # the pelvis at the origin
+    hips = last[1] - last[2]  # left minus right hip: along +x, level in the camera's x-z plane
+    assert hips[0] > 0 and abs(hips[2]) < 1e-9
+    assert np.all(canonical_joints[..., 15, 1] < canonical_joints[..., 0, 1])  # the head above the pelvis: y down
+    # One rigid motion for the whole scene: every distance, within a person and between the two, is kept.
+    points = lambda j: j.transpose(1, 0, 2, 3).reshape(j.shape[1], -1, 3)  # noqa: E731  (frames, 48 joints, 3)
+    distances = lambda p: np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)  # noqa: E731
+    assert_allclose(distances(points(canonical_joints)), distances(points(joints)), atol=1e-9)
+    # Rotations and joints moved together: posing the body with the new rotations gives the new joints.
+    posed = jax.vmap(jax.vmap(geometry.body_joints, in_axes=(None, 0, None, None)), in_axes=(None, 0, None, None))(
+        BODY, jnp.asarray(canonical_rotations), jnp.zeros(BODY.num_shapes), jnp.zeros(3))
+    posed = np.asarray(posed) - np.asarray(posed)[..., :1, :] + canonical_joints[..., :1, :]
+    assert_allclose(posed, canonical_joints, atol=1e-9)
+    assert_array_equal(canonical_rotations[..., 1:, :, :], rotations[..., 1:, :, :])  # local rotations unchanged
+
+
+def test_pose_features_layout():
+    rotations, joints = _world_window(5, frames=2)
+    features = np.asarray(dynamics.pose_features(jnp.asarray(rotations), jnp.asarray(joints)))
+    assert features.shape == (2, dynamics.POSE_FEATURES)
+    assert_allclose(features[:, :144].reshape(2, 24, 6), np.asarray(geometry.matrix_to_rotation_6d(rotations)))
+    assert_allclose(features[:, 144:216].reshape(2, 24, 3), joints - joints[:, :1])
+    assert_allclose(features[:, 216:], joints[:, 0])
+
+
+def test_baselines():
+    start, step = np.random.default_rng(0).normal(size=(2, 24, 3))
+    observed = start + np.arange(5)[:, None, None] * step  # constant velocity
+    ahead = start + np.arange(5, 9)[:, None, None] * step
+    assert_allclose(np.asarray(dynamics.constant_velocity_forecast(observed, 4)), ahead, atol=1e-12)
+    zero = np.asarray(dynamics.zero_motion_forecast(observed[None], 3))
+    assert zero.shape == (1, 3, 24, 3) and np.all(zero == observed[-1])
+    with pytest.raises(ValueError, match="constant velocity needs at least 2 observed frames, got 1"):
+        dynamics.constant_velocity_forecast(observed[:1], 2)
+
+
+@pytest.mark.parametrize("model", [dict(jat=TINY_JAT), dict(phdt=TINY_PHDT)], ids=["JAT", "PHD+T"])
+def test_forecasters_take_scenes_and_refuse_bad_shapes(model):
+    forecaster = dynamics.PoseForecaster(dynamics.ForecasterConfig(**model), rngs=nnx.Rngs(0))
+    rotations, joints = _world_window(1, frames=14)
+    rotations, joints = dynamics.canonical_window(jnp.asarray(rotations[None]), jnp.asarray(joints[None]), 13)
+    scene = lambda x: jnp.broadcast_to(x, (2,) + x.shape)  # noqa: E731  (2 windows of 1 person)
+    betas = jnp.zeros((2, 1, 14, 3))
+    predicted = dynamics.forecast_joints(forecaster, BODY, scene(rotations), betas, scene(joints), 4)
+    assert predicted.shape == (2, 1, 4, 24, 3) and bool(jnp.all(jnp.isfinite(predicted)))
+    with pytest.raises(ValueError, match=r"need rotations \(\*b, N, T, 24, 3, 3\), betas \(\*b, N, T, 3\) and joints"):
+        forecaster.observe(scene(rotations), jnp.zeros((2, 1, 14, 5)), scene(joints))  # 5 shape coefficients
+    with pytest.raises(ValueError, match="exactly one of phdt and jat"):
+        dynamics.ForecasterConfig()
+
+
+@pytest.mark.parametrize("model", [dict(jat=TINY_JAT), dict(phdt=TINY_PHDT)], ids=["JAT", "PHD+T"])
+def test_decoding_from_the_previous_frame_with_a_silent_decoder_is_zero_motion(model):
+    """f_HMR refines the previous frame's pose: with its decoder silent (and f_transl untrained, zero-initialised),
+    every predicted frame is the last observed one, as ZeroMotion's; decoding from the mean pose it is not."""
+    rotations, joints = _world_window(2, frames=14)
+    rotations, joints = dynamics.canonical_window(jnp.asarray(rotations[None]), jnp.asarray(joints[None]), 13)
+    scene = lambda x: x[None]  # noqa: E731
+    betas = jnp.zeros((1, 1, 14, 3))
+    config = next(iter(model.values()))
+    for decode_from_previous in (True, False):
+        models = {name: dataclasses.replace(config, decode_from_previous=decode_from_previous) for name in model}
+        forecaster = dynamics.PoseForecaster(dynamics.ForecasterConfig(**models), rngs=nnx.Rngs(0))
+        head = forecaster.model.hmr
+        head.decoder.kernel[...] = jnp.zeros_like(head.decoder.kernel[...])
+        head.decoder.bias[...] = jnp.zeros_like(head.decoder.bias[...])
+        predicted = np.asarray(dynamics.forecast_joints(forecaster, BODY, scene(rotations), betas, scene(joints), 3))
+        zero = np.asarray(dynamics.zero_motion_forecast(joints[0], 3))
+        assert np.allclose(predicted[0, 0], zero, atol=1e-5) == decode_from_previous
+
+
+def test_the_bias_ablation_starts_where_jat_starts():
+    jat = dynamics.initial_forecaster(dynamics.FORECASTERS["JAT"], 0)
+    ablation = dynamics.initial_forecaster(dynamics.FORECASTERS["JAT w/o bias"], 0)
+    jat_params = dict(nnx.to_flat_state(nnx.state(jat, nnx.Param)))
+    ablation_params = dict(nnx.to_flat_state(nnx.state(ablation, nnx.Param)))
+    assert set(ablation_params) < set(jat_params)
+    assert {path[1] for path in set(jat_params) - set(ablation_params)} == {"bias_self"}
+    for path, variable in ablation_params.items():
+        assert_array_equal(np.asarray(variable[...]), np.asarray(jat_params[path][...]), err_msg=str(path))
+    # Built on its own from the same seed, the ablation would not start there (its RNG stream skips the bias).
+    alone = dict(nnx.to_flat_state(nnx.state(dynamics.PoseForecaster(dynamics.FORECASTERS["JAT w/o bias"],
+                                                                      rngs=nnx.Rngs(0)), nnx.Param)))
+    assert any(not np.array_equal(np.asarray(alone[p][...]), np.asarray(jat_params[p][...])) for p in alone)
+
+
+def test_forecast_split_keeps_one_file_per_action_for_validation(data_root):
+    training_files, validation_files = dynamics.forecast_split(data_root)
+    every = {str(f.resolve()) for f in mocap.cmu_expmap_files(data_root, "train")}
+    assert set(training_files) | set(validation_files) == every and not set(training_files) & set(validation_files)
+    actions = [f.split("/")[-2] for f in validation_files]
+    assert sorted(actions) == sorted(set(actions)) == sorted({f.split("/")[-2] for f in every})
+    assert any(f.endswith("walking_extra/walking_52.txt") for f in validation_files)  # the highest number
+    test_file = str(mocap.cmu_expmap_files(data_root, "test")[0])
+    with pytest.raises(ValueError, match="is in the benchmark's test split"):
+        dynamics.ForecastTrainConfig(training_files + (test_file,), validation_files)
+    with pytest.raises(ValueError, match="is both a training and a validation file"):
+        dynamics.ForecastTrainConfig(training_files, validation_files + training_files[:1])
+
+
+def test_pose_frames_of_a_real_file(data_root, tmp_path):
+    file = data_root / "cmu_expmap" / "test" / "walking" / "walking_1.txt"
+    frames = dynamics.pose_frames([file], BODY, cache_dir=tmp_path)
+    lines = len(file.read_text().splitlines())
+    assert frames.num_frames == int(np.floor((lines - 1) / 120.0 * 25.0 + 1e-9)) + 1
+    assert np.isfinite(frames.joints3d).all() and np.all(frames.track == 0)
+    parents = geometry.SMPL24.parents
+    bones = np.linalg.norm(frames.joints3d[:, 1:] - frames.joints3d[:, list(parents[1:])], axis=-1)
+    assert np.ptp(bones, axis=0).max() < 1e-5  # a rigid skeleton: the body model's bones
+    speed = np.median(np.linalg.norm(np.diff(frames.joints3d[:, 0, :2], axis=0), axis=-1)) * 25.0
+    assert 0.8 < speed < 2.0  # a walk, metres per second
+    cached = list(tmp_path.glob("pose_frames_*.npz"))
+    assert len(cached) == 1
+    again = dynamics.pose_frames([file], BODY, cache_dir=tmp_path)
+    for ours, theirs in zip(frames, again):
+        assert_array_equal(theirs, ours)
+
+
+def test_pose_frames_of_people_captured_together(data_root):
+    pair = "+".join(str(data_root / "cmu_mocap" / f"{subject}_05_scaled.bvh") for subject in (60, 61))
+    frames = dynamics.pose_frames([pair], BODY)
+    assert set(np.unique(frames.person)) == {0, 1} and np.all(frames.video == 0)
+    assert_array_equal(frames.frame[frames.person == 0], frames.frame[frames.person == 1])
+    scenes, present = dynamics.scene_windows(frames, 50, stride=25, people=2)
+    assert len(scenes) > 0 and present.all()
+    apart = np.linalg.norm(frames.joints3d[frames.person == 0, 0] - frames.joints3d[frames.person == 1, 0], axis=-1)
+    assert 0.2 < np.median(apart) < 2.0  # dance partners, metres between pelvises
+    with pytest.raises(ValueError, match="is a shipped clip"):
+        dynamics.pose_frames(["02_01_walk"], BODY)
+
+
+def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
+    # Two short actions, copied under a folder of their own (a user's files, outside the benchmark's split).
+    files = []
+    for action in ("walking", "jumping", "soccer"):
+        source = data_root / "cmu_expmap" / "train" / action / f"{action}_1.txt"
+        target = tmp_path / "motion" / f"{action}_1.txt"
+        target.parent.mkdir(exist_ok=True)
+        target.write_text("\n".join(source.read_text().splitlines()[:400]) + "\n")
+        files.append(str(target))
+    config = dynamics.ForecastTrainConfig(
+        tuple(files[:2]), tuple(files[2:]), model=dynamics.ForecasterConfig(jat=TINY_JAT),
+        stage=dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1), observed=6,
+        horizon=3, checkpoint_interval=2, validation_interval=2, log_interval=1, cache_dir=str(tmp_path / "cache"))
+    full = dynamics.train_forecaster(config, tmp_path / "full", BODY, resume=False, progress=False)
+    with pytest.raises(Killed):
+        dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=False, log=kill_at(3), progress=False)
+    resumed = dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=True, progress=False)
+    assert_same_parameters(resumed, full)
+    shutil.copytree(tmp_path / "full" / "model", tmp_path / "models" / "jat")
+    loaded = dynamics.load_forecasters(tmp_path / "models")
+    assert list(loaded) == ["JAT"]
+    assert_same_parameters(loaded["JAT"], full)
+    with pytest.raises(FileNotFoundError, match="holds none of the forecasters"):
+        dynamics.load_forecasters(tmp_path / "full")
+
+
+def test_command_refuses_a_missing_data_folder(tmp_path, capsys):
+    from experiments import dynamics_forecast
+    with pytest.raises(SystemExit) as exit_:
+        dynamics_forecast._cli.run(dynamics_forecast.main, dynamics_forecast.Config,
+                                   argv=["--out", str(tmp_path / "out"), "--data-root", str(tmp_path)])
+    assert exit_.value.code == 2
+    assert f"data folder {tmp_path} holds no cmu_expmap" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
