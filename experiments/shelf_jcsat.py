@@ -50,7 +50,9 @@ class Config(jcsat_study.ShelfExperimentConfig):
     """With --train: the named run in jcsat.TRAIN_CONFIGS. cpu: the 'cpu' model, 2400 steps of 8 windows on 16
     scenes (the 2-core CPU's run); gpu: the 'cpu_wide' model, 6000 steps of 64 windows on 48 scenes;
     cpu_head_4da: the shipped model's second stage, 500 steps of 16 windows fine-tuning the gpu run's model on
-    labels with the 4D-association head rule."""
+    labels with the 4D-association head rule; gpu_expmap: the shipped model continued for 3000 steps of 64 windows
+    on 96 scenes (with --train-expmap); gpu_medium: the paper's Medium model from scratch, 40000 steps of 8
+    windows on 96 scenes."""
     steps: int | None = None
     """With --train: optimisation steps (default: the --config run's)."""
     data_workers: int = 1
@@ -85,7 +87,8 @@ class Config(jcsat_study.ShelfExperimentConfig):
         return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "train"))
 
 
-def _train(config: Config) -> Path:
+def train_config(config: Config) -> jcsat.TrainConfig:
+    """The run ``--train`` makes: the --config run with the command's seed, clips, --quick and --steps."""
     train_config = dataclasses.replace(jcsat.TRAIN_CONFIGS[config.config], seed=config.seed)
     if config.train_expmap:
         data = train_config.data
@@ -97,9 +100,13 @@ def _train(config: Config) -> Path:
                                            data=dataclasses.replace(train_config.data, num_scenes=4))
     if config.steps is not None:
         train_config = dataclasses.replace(train_config, steps=config.steps,
-                                           warmup_steps=min(train_config.warmup_steps, config.steps))
+                                           warmup_steps=min(train_config.warmup_steps, config.steps - 1))
+    return train_config
+
+
+def _train(config: Config) -> Path:
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
-    jcsat.train(train_config, workdir, resume=config.resume, data_workers=config.data_workers)
+    jcsat.train(train_config(config), workdir, resume=config.resume, data_workers=config.data_workers)
     return workdir / "model"
 
 

@@ -49,6 +49,7 @@ from ._train import train as train
 from ._train import TRAIN_CONFIGS as TRAIN_CONFIGS
 from ._train import train_step as train_step
 from ._train import TrainConfig as TrainConfig
+from ._train import validate as validate
 from ._train import TrainState as TrainState
 
 __version__ = _version("mvmocap")

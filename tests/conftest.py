@@ -80,8 +80,8 @@ _LONGEST_FIRST = (
     # the whole suite took 17 min 12 s on 2026-11-25 (2-core VM, two workers)
     "test_dynamics_train.py", "test_flex_train.py", "test_structri.py", "test_jcsat_train.py", "test_dynamics.py",
     "test_jcsat_inference.py", "test_notebooks.py", "test_jcsat_model.py", "test_flex_experiment.py",
-    "test_flex_model.py", "test_structri_shelf.py", "test_dynamics_defects.py", "test_dynamics_forecast.py",
-    "test_reconstruct.py",
+    "test_jcsat_ablations.py", "test_flex_model.py", "test_structri_shelf.py", "test_dynamics_defects.py",
+    "test_dynamics_forecast.py", "test_reconstruct.py",
     "test_geometric_baseline.py", "test_jat.py", "test_joint_cloud.py", "test_jcsat_motion.py", "test_dynamics_clips.py",
     "test_scene_viewer.py", "test_docs.py",
 )

@@ -19,7 +19,7 @@ from geometry import SHELF15
 from jcsat import (
     CONFIGS, JCSAT, TRAIN_CONFIGS, VALIDATION_CLIPS, Batch, DataConfig, JCSATConfig, TrainConfig, bone_losses,
     build_dataset, init_state, jcsat_loss, learning_rate_schedule, load_model, make_optimiser, pcp_hinge_loss,
-    project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step, window_batch,
+    project_normalised, projection_loss, reconstruction_loss, sample_batch, train, train_step, validate, window_batch,
 )
 import training
 from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
@@ -288,6 +288,29 @@ def test_resume_is_bit_identical(full_run, tmp_path):
     # The shipped model file loads back into the same parameters.
     loaded = load_model(full_dir / "model")
     assert_same_parameters(full_model, loaded)
+
+
+def test_validate_matches_the_log_and_a_hand_computation(full_run, cache_dir):
+    config, full_dir, full_model = full_run
+    data = build_dataset(config.validation_data, cache_dir)
+    last = json.loads((full_dir / "log.jsonl").read_text().splitlines()[-1])
+    # The run validated 6 windows in batches of 2; 4 pads the second batch, whose padding must weigh nothing.
+    figures = validate(full_model, data, windows=config.validation_windows, batch_size=4)
+    assert figures["val_frames"] == last["val_frames"]
+    assert_allclose([figures["val_mpjpe_mm"], figures["val_pcp"]], [last["val_mpjpe_mm"], last["val_pcp"]], rtol=1e-6)
+    batch = window_batch(data, np.arange(config.validation_windows), np.zeros(config.validation_windows), TINY.frames)
+    pred = np.asarray(full_model(batch.points, batch.mask), np.float64)
+    error = np.linalg.norm(pred - np.asarray(batch.target), axis=-1).mean(-1)[np.asarray(batch.target_valid)]
+    assert_allclose(figures["val_mpjpe_mm"], 1000 * error.mean(), rtol=1e-5)
+    with pytest.raises(ValueError, match="windows must be >= 1"):
+        validate(full_model, data, windows=0)
+
+
+def test_warmup_leaves_a_decay_step():
+    with pytest.raises(ValueError, match=r"warmup_steps must be in \[0, steps=4\)"):
+        _config(warmup_steps=4)
+    from experiments import shelf_jcsat  # --steps below a run's warm-up keeps one decay step
+    assert shelf_jcsat.train_config(shelf_jcsat.Config(train=True, config="gpu_medium", steps=30)).warmup_steps == 29
 
 
 def test_init_model_starts_the_run(full_run, tmp_path):

@@ -75,6 +75,8 @@ class ShelfExperimentConfig:
     """People in the synthetic scene (without Shelf data)."""
     synthetic_frames: int = 150
     """Frames of the synthetic scene (without Shelf data)."""
+    synthetic_clips: tuple[str, ...] | None = None
+    """Clips the synthetic scene draws its people from (shipped names or motion files); None: every shipped clip."""
     plot: bool = True
     """Write ``frame.png`` (Joint Cloud of one person, baseline, ground truth, reprojections)."""
     baseline: BaselineConfig = BaselineConfig()
@@ -112,6 +114,10 @@ class ShelfExperimentConfig:
         kept = _SHELF_VIEWS if self.views is None else len(self.views)
         if self.perturb_cameras > kept:
             raise ValueError(f"perturb_cameras={self.perturb_cameras} but only {kept} views are kept")
+        for clip in self.synthetic_clips or ():
+            mocap.clip_files(clip)  # a ValueError naming a clip that is neither shipped nor a file
+        if self.synthetic_clips == ():
+            raise ValueError("synthetic_clips names no clip")
         if self.synthetic_people < 1 or self.synthetic_frames < 1:
             raise ValueError(f"synthetic_people and synthetic_frames must be >= 1, got {self.synthetic_people} "
                              f"and {self.synthetic_frames}")
@@ -203,8 +209,9 @@ def _load_data(config: ShelfExperimentConfig) -> _ShelfData:
     if synthetic:
         people = 3 if config.quick else config.synthetic_people
         frames = 40 if config.quick else config.synthetic_frames
+        clips = None if config.synthetic_clips is None else [mocap.shared_clip(c) for c in config.synthetic_clips]
         scene = mocap.synthesise_scene(jax.random.key(config.seed), mocap.shelf_cameras(), num_people=people,
-                                       num_frames=frames)
+                                       num_frames=frames, clips=clips)
         rig, detections, frame_indices = scene.rig, scene.detections, np.arange(frames)
         ground_truth = mocap.EvaluationGroundTruth(frame_indices, np.swapaxes(scene.shelf15, 0, 1),
                                                    np.ones((people, frames), bool))
