@@ -77,7 +77,7 @@ class Config:
                                        validation_data=dataclasses.replace(base.validation_data, num_scenes=1,
                                                                            num_frames=20))
         if self.steps is not None:
-            base = dataclasses.replace(base, steps=self.steps, warmup_steps=min(base.warmup_steps, self.steps - 1))
+            base = base.with_steps(self.steps)
         return base
 
 

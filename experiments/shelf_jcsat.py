@@ -99,8 +99,7 @@ def train_config(config: Config) -> jcsat.TrainConfig:
                                            validation_interval=100,
                                            data=dataclasses.replace(train_config.data, num_scenes=4))
     if config.steps is not None:
-        train_config = dataclasses.replace(train_config, steps=config.steps,
-                                           warmup_steps=min(train_config.warmup_steps, config.steps - 1))
+        train_config = train_config.with_steps(config.steps)
     return train_config
 
 

@@ -85,6 +85,15 @@ class TrainConfig:
     """A model folder (:func:`~jcsat.load_model`) whose parameters start the run (fine-tuning); its config must be
     ``model``'s. None: a fresh initialisation from ``seed``."""
 
+    @property
+    def model_config(self) -> JCSATConfig:
+        """``model`` as a configuration (a name looked up in :data:`~jcsat.CONFIGS`)."""
+        return CONFIGS[self.model] if isinstance(self.model, str) else self.model
+
+    def with_steps(self, steps: int) -> TrainConfig:
+        """This run with ``steps`` optimisation steps, its warm-up cut to leave at least one step of decay."""
+        return dataclasses.replace(self, steps=steps, warmup_steps=min(self.warmup_steps, steps - 1))
+
     def __post_init__(self) -> None:
         for name in ("batch_size", "steps", "checkpoint_interval", "validation_interval", "log_interval",
                      "validation_windows"):
@@ -94,7 +103,7 @@ class TrainConfig:
             raise ValueError(f"warmup_steps must be in [0, steps={self.steps}), got {self.warmup_steps}")
         if isinstance(self.model, str) and self.model not in CONFIGS:
             raise ValueError(f"model must be one of {sorted(CONFIGS)} or a JCSATConfig, got {self.model!r}")
-        model_window = (CONFIGS[self.model] if isinstance(self.model, str) else self.model).frames
+        model_window = self.model_config.frames
         if not self.data.window == self.validation_data.window == model_window:
             raise ValueError(f"training and validation windows must have the model's length {model_window}")
         shared_seeds = set(self.data.seeds) & set(self.validation_data.seeds)
@@ -106,6 +115,9 @@ class TrainConfig:
             raise ValueError(f"training clips {held_out[:3]} are held out (validation clips or the CMU-Mocap "
                              "benchmark's test split)")
 
+
+_VALIDATION_4DA = DataConfig(clips=VALIDATION_CLIPS, num_scenes=4, first_seed=10_000, head_rule="4da")
+"""The default validation scenes labelled with the 4D-association head rule."""
 
 TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "cpu": TrainConfig(),
@@ -120,7 +132,7 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "cpu_head_4da": TrainConfig(
         model="cpu_wide", batch_size=16, steps=500, peak_lr=2e-4, warmup_steps=50, checkpoint_interval=100,
         validation_interval=250, log_interval=25, data=DataConfig(head_rule="4da"),
-        validation_data=DataConfig(clips=VALIDATION_CLIPS, num_scenes=4, first_seed=10_000, head_rule="4da"),
+        validation_data=_VALIDATION_4DA,
         init_model=str(Path(__file__).parent / "assets" / "shelf_wide"),
     ),
     # The shipped model continued on one GPU with twice the scenes, labelled by the 4D-association head rule; run with
@@ -128,7 +140,7 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "gpu_expmap": TrainConfig(
         model="cpu_wide", batch_size=64, steps=3_000, peak_lr=3e-4, warmup_steps=150, checkpoint_interval=500,
         validation_interval=500, log_interval=100, data=DataConfig(num_scenes=96, head_rule="4da"),
-        validation_data=DataConfig(clips=VALIDATION_CLIPS, num_scenes=4, first_seed=10_000, head_rule="4da"),
+        validation_data=_VALIDATION_4DA,
         init_model=str(Path(__file__).parent / "assets" / "shelf_wide_4da"),
     ),
     # The paper's Medium model from scratch at the official code's rate. 8 windows per step took 70 GB of an H200
@@ -136,7 +148,7 @@ TRAIN_CONFIGS: dict[str, TrainConfig] = {
     "gpu_medium": TrainConfig(
         model="medium", batch_size=8, steps=40_000, peak_lr=1.5e-4, warmup_steps=1_000, checkpoint_interval=1_000,
         validation_interval=1_000, log_interval=10, data=DataConfig(num_scenes=96, head_rule="4da"),
-        validation_data=DataConfig(clips=VALIDATION_CLIPS, num_scenes=4, first_seed=10_000, head_rule="4da"),
+        validation_data=_VALIDATION_4DA,
     ),
 }
 """Named training runs (``python -m experiments.shelf_jcsat --train --config NAME``)."""
@@ -282,7 +294,7 @@ def train(
     if train_data.num_windows == 0 or validation_data.num_windows == 0:
         raise ValueError("no training or validation windows: more scenes or frames are needed")
 
-    model_config = CONFIGS[config.model] if isinstance(config.model, str) else config.model
+    model_config = config.model_config
     model = JCSAT(model_config, rngs=nnx.Rngs(config.seed))
     if config.init_model is not None:
         start = load_model(config.init_model)

@@ -25,8 +25,7 @@ def _changed(a, b, prefix="") -> set[str]:
 
 def test_each_variant_changes_one_thing():
     def resolved(config: jcsat.TrainConfig) -> dict:  # a model named or given by its configuration compares alike
-        model = jcsat.CONFIGS[config.model] if isinstance(config.model, str) else config.model
-        return dataclasses.asdict(dataclasses.replace(config, model=model))
+        return dataclasses.asdict(dataclasses.replace(config, model=config.model_config))
 
     base = jcsat.TRAIN_CONFIGS["cpu"]
     changed = {name: _changed(resolved(base), resolved(change(base))) for name, change in jcsat_study.VARIANTS.items()}

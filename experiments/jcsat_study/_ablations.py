@@ -30,28 +30,19 @@ SHIPPED = "shipped"
 """The variant name of rows that evaluate the shipped model (no training)."""
 
 
-def _model_change(**changes) -> Callable[[jcsat.TrainConfig], jcsat.TrainConfig]:
-    def change(config: jcsat.TrainConfig) -> jcsat.TrainConfig:
-        model = jcsat.CONFIGS[config.model] if isinstance(config.model, str) else config.model
-        return dataclasses.replace(config, model=dataclasses.replace(model, **changes))
-    return change
-
-
-def _aggregation(name: str) -> Callable[[jcsat.TrainConfig], jcsat.TrainConfig]:
-    def change(config: jcsat.TrainConfig) -> jcsat.TrainConfig:
-        model = jcsat.CONFIGS[config.model] if isinstance(config.model, str) else config.model
-        return dataclasses.replace(config, model=jcsat.aggregation_variant(model, name))
-    return change
+def _model_change(change: Callable[[jcsat.JCSATConfig], jcsat.JCSATConfig]
+                  ) -> Callable[[jcsat.TrainConfig], jcsat.TrainConfig]:
+    return lambda config: dataclasses.replace(config, model=change(config.model_config))
 
 
 VARIANTS: dict[str, Callable[[jcsat.TrainConfig], jcsat.TrainConfig]] = {
     "reference": lambda config: config,
-    "no candidate masking": _model_change(mask_ratio=(0.0, 0.0)),
+    "no candidate masking": _model_change(lambda model: dataclasses.replace(model, mask_ratio=(0.0, 0.0))),
     "no kinematic losses": lambda config: dataclasses.replace(
         config, losses=dataclasses.replace(config.losses, bone_temporal=0.0, bone_symmetry=0.0)),
-    "no OTAP (masked means)": _aggregation("otap_a"),
-    "V-OTAP only": _aggregation("otap_b"),
-    "T-, S-OTAP only": _aggregation("otap_c"),
+    "no OTAP (masked means)": _model_change(lambda model: jcsat.aggregation_variant(model, "otap_a")),
+    "V-OTAP only": _model_change(lambda model: jcsat.aggregation_variant(model, "otap_b")),
+    "T-, S-OTAP only": _model_change(lambda model: jcsat.aggregation_variant(model, "otap_c")),
     "encoder 'cpu'": lambda config: dataclasses.replace(config, model="cpu"),
     "encoder 'cpu_wide'": lambda config: dataclasses.replace(config, model="cpu_wide"),
 }
