@@ -8,6 +8,7 @@ compile times, and the optimistix reference's time per frame.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 
@@ -17,7 +18,7 @@ import numpy as np
 from experiments import _cli
 from experiments.bench_geometry import interleaved_times
 from geometry import STRUCTRI17
-from structri import constrained_reference, lem_triangulation, structural_triangulation
+from structri import _solver, constrained_reference, lem_triangulation, structural_triangulation
 from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation
 
 
@@ -40,6 +41,10 @@ class Config:
     repeats: int = 7
     """Timed rounds, each calling every contender once in turn; each one's best is kept (7: a busy spell of the
     shared 2-core VM can slow three rounds in a row)."""
+    layouts: tuple[str, ...] = ()
+    """Also time ST + SCA with other chunk layouts of the batched solver, each CHUNKxSTREAMS (frames per chunk x
+    chunks solved side by side, e.g. 128x1 160x2), interleaved with the default layout; prints microseconds per
+    frame of each (the figures behind ``structri._solver._CHUNK_FRAMES`` and ``_STREAMS``)."""
     json: bool = False
     """Print one JSON object (otherwise key: value lines)."""
 
@@ -51,6 +56,16 @@ class Config:
             raise ValueError(f"--sigma must be >= 0 pixels, got {self.sigma}")
         if self.numpy_frames > self.frames or self.reference_frames >= self.frames:
             raise ValueError("--numpy-frames and --reference-frames must be fewer than --frames")
+        for layout in self.layouts:
+            parse_layout(layout)
+
+
+def parse_layout(text: str) -> tuple[int, int]:
+    """``"160x2"`` -> ``(160, 2)``: frames per chunk, chunks side by side."""
+    parts = text.split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) >= 1 for p in parts):
+        raise ValueError(f"--layouts takes CHUNKxSTREAMS with positive integers (e.g. 160x2), got {text!r}")
+    return int(parts[0]), int(parts[1])
 
 
 def make_problem(cfg: Config):
@@ -86,6 +101,19 @@ def _compare(name, jax_fn, numpy_fn, points, cfg):
             f"{name}_max_rel_diff": float(np.max(np.abs(ours - ref)) / np.max(np.abs(ref)))}
 
 
+def _layout_times(points, P, lengths, cfg: Config) -> dict[str, float]:
+    """Microseconds per frame of ST + SCA with the default chunk layout and each of ``cfg.layouts``."""
+    layouts = {"default": (_solver._CHUNK_FRAMES, _solver._STREAMS)} | {text: parse_layout(text) for text in cfg.layouts}
+
+    def solver(layout):
+        return jax.jit(lambda p: _solver._solve(p, P, lengths, STRUCTRI17, None, "st", cfg.n_steps,
+                                                degenerate_rcond=1e-3, layout=layout).pose)
+
+    calls = {name: functools.partial(solver(layout), points) for name, layout in layouts.items()}
+    seconds, _ = interleaved_times(calls, cfg.repeats)
+    return {name: 1e6 * s / cfg.frames for name, s in seconds.items()}
+
+
 def run(cfg: Config) -> dict:
     points, P, lengths = make_problem(cfg)
     out = {"config": {k: v for k, v in dataclasses.asdict(cfg).items() if k != "json"}, "backend": jax.default_backend(), "dtype": "float64"}
@@ -98,6 +126,8 @@ def run(cfg: Config) -> dict:
     P_mm = P.copy()
     P_mm[:, :, 3] *= 1000.0
     out |= _compare("lem", lem, lambda p: numpy_lem_triangulation(p, P_mm) / 1000.0, points, cfg)
+    if cfg.layouts:
+        out["st_layout_us_per_frame"] = _layout_times(points, P, lengths, cfg)
     jax.block_until_ready(constrained_reference(points[0], P, lengths).pose)  # compile
     t = time.perf_counter()
     for f in range(1, cfg.reference_frames + 1):

@@ -588,27 +588,38 @@ def _prepare(points_2d, cameras, bone_lengths, skeleton, confidences):
     return frames, args, axes
 
 
-_CHUNK_FRAMES = 128
+_CHUNK_FRAMES = 160
 """Frames per chunk of the frames-last kernels, so that each chunk's working set stays in cache (one
-of SCA's bones x 3 x bones operators holds 6 KB per frame in float64, 0.8 MB per chunk of 128); the
-chunks run sequentially under ``lax.map``. Side by side (ST + SCA, 4 views, 10k frames, 2 cores, 2026-11-25):
-32 frames 73k frames/s, 64 frames 77k, 128 frames 84k, 192 frames 85k, 256 frames 53k, 512 frames 38k."""
+of SCA's bones x 3 x bones operators holds 6 KB per frame in float64, about 1 MB per chunk of 160); the
+chunks run in a sequential ``lax.map``."""
+
+_STREAMS = 2
+"""Chunks solved side by side in each step of that loop, as separate subgraphs: XLA:CPU runs independent
+operations concurrently on its threads, while the fusions of one chunk keep 2 cores only partly busy. ST + SCA
+(N = 3, 4 views, 10k frames, 2 cores) in microseconds per frame, three runs of ``python -m
+experiments.bench_structri --layouts 128x1 160x1 160x2``: 10.7 / 9.4 / 8.5, 13.1 / 10.9 / 12.0, 10.2 / 9.2 / 8.9
+(the previous layout, one stream of 160, two). Inputs of fewer than ``_STREAMS`` chunks take one stream, which
+compiles one copy of the kernel instead of two."""
 
 
 @functools.partial(jax.jit, static_argnames=("axes", "skeleton", "method", "n_steps", "schedule", "multiplier_system",
-                                              "degenerate_rcond", "max_length_error", "lagrangian"))
+                                              "degenerate_rcond", "max_length_error", "lagrangian", "layout"))
 def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_steps, schedule,
-                degenerate_rcond, lagrangian, multiplier_system="current", max_length_error=float("inf")):
-    """Frames-first flat inputs -> frames-last chunks -> :func:`_chunk` under ``lax.map`` -> frames-first."""
-    frames = points_2d.shape[0]
-    chunk = max(1, min(frames, _CHUNK_FRAMES))
-    num_chunks = -(-frames // chunk)
-    pad = num_chunks * chunk - frames
+                degenerate_rcond, lagrangian, multiplier_system="current", max_length_error=float("inf"),
+                layout=(_CHUNK_FRAMES, _STREAMS)):
+    """Frames-first flat inputs -> frames-last chunks -> :func:`_chunk` under ``lax.map`` -> frames-first.
 
-    def to_chunks(x):
+    ``layout``: (frames per chunk, streams), the defaults above; other values only change the speed."""
+    frames = points_2d.shape[0]
+    chunk = max(1, min(frames, layout[0]))
+    streams = layout[1] if frames >= layout[1] * chunk else 1
+    steps = -(-frames // (streams * chunk))
+    pad = steps * streams * chunk - frames
+
+    def to_chunks(x):  # (steps, streams, ..., chunk)
         if pad:  # repeat the last frame: finite filler, dropped below
             x = jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)])
-        return jnp.moveaxis(x.reshape((num_chunks, chunk) + x.shape[1:]), 1, -1)
+        return jnp.moveaxis(x.reshape((steps, streams, chunk) + x.shape[1:]), 2, -1)
 
     kernel = functools.partial(_chunk, skeleton=skeleton, method=method, n_steps=n_steps, schedule=schedule,
                                multiplier_system=multiplier_system,
@@ -617,20 +628,22 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
     shared = [x[..., None] if axis is None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
     batched = [to_chunks(x) if axis is not None else None for x, axis in zip((points_2d, P, lengths, weights), axes)]
 
-    def run(chunk_args):
-        return kernel(*[s if s is not None else c for s, c in zip(shared, chunk_args)])
+    def run(step_args):  # one kernel call per stream, stacked
+        outs = [kernel(*[s if s is not None else c[i] for s, c in zip(shared, step_args)]) for i in range(streams)]
+        return jax.tree.map(lambda *x: jnp.stack(x), *outs)
 
     out = jax.lax.map(run, batched)
-    return jax.tree.map(lambda x: jnp.moveaxis(x, -1, 1).reshape((num_chunks * chunk,) + x.shape[1:-1])[:frames], out)
+    return jax.tree.map(lambda x: jnp.moveaxis(x, -1, 2).reshape((steps * streams * chunk,) + x.shape[2:-1])[:frames],
+                        out)
 
 
 def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_steps=1,
            schedule="length", degenerate_rcond=0.0, lagrangian=(), max_length_error=float("inf"),
-           multiplier_system="current"):
+           multiplier_system="current", layout=(_CHUNK_FRAMES, _STREAMS)):
     frames, args, axes = _prepare(points_2d, cameras, bone_lengths, skeleton, confidences)
     out = _solve_flat(*args, axes=axes, skeleton=skeleton, method=method, n_steps=n_steps,
                       schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian,
-                      max_length_error=max_length_error, multiplier_system=multiplier_system)
+                      max_length_error=max_length_error, multiplier_system=multiplier_system, layout=layout)
     return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]), out)
 
 

@@ -11,7 +11,7 @@ from experiments.structri_study import VirtualConfig, run_virtual
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
                       lem_triangulation, ls_triangulation, reduced_objective, reduced_problem,
                       structural_triangulation)
-from structri._solver import _solve_symmetric
+from structri._solver import StructriResult, _solve, _solve_symmetric
 from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation_frames
 
 # H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
@@ -122,6 +122,18 @@ def test_traced_inside_a_callers_jit_equals_a_direct_call(scene):
     jitted = jax.jit(lambda p: structural_triangulation(p, rig, LENGTHS, n_steps=2).pose)(points[:2])
     direct = structural_triangulation(points[:2], rig, LENGTHS, n_steps=2).pose
     np.testing.assert_allclose(jitted, direct, rtol=1e-10, atol=1e-12)
+
+
+def test_chunks_solved_side_by_side_equal_one_chunk(scene):
+    """Chunks of 5 frames, two side by side, the last step padded (the layout a 10k-frame batch takes, at a size the
+    suite can afford) give per frame what one chunk of all frames gives."""
+    _, _, points, P = scene
+    def solve(layout):
+        return _solve(points, P, LENGTHS, STRUCTRI17, None, "st", 3, degenerate_rcond=1e-3, layout=layout)
+    whole, side_by_side = solve((FRAMES, 1)), solve((5, 2))
+    for name in StructriResult._fields:
+        np.testing.assert_allclose(getattr(side_by_side, name), getattr(whole, name), rtol=1e-12, atol=1e-14,
+                                   err_msg=name)
 
 
 @pytest.mark.parametrize("pattern,views", [("round", 3), ("half", 2)])
@@ -368,9 +380,13 @@ def test_frames_last_elimination_matches_numpy(size):
 
 def test_benchmark_smoke():
     from experiments import bench_structri
-    out = bench_structri.run(bench_structri.Config(frames=FRAMES, numpy_frames=4, reference_frames=1, repeats=1))
+    out = bench_structri.run(bench_structri.Config(frames=FRAMES, numpy_frames=4, reference_frames=1, repeats=1,
+                                                   layouts=("5x2",)))
     assert out["st_max_rel_diff"] < 1e-6 and out["lem_max_rel_diff"] < 1e-6
     assert out["st_speedup_vs_numpy"] > 0 and out["reference_s_per_frame"] > 0
+    assert set(out["st_layout_us_per_frame"]) == {"default", "5x2"}
+    with pytest.raises(ValueError, match="CHUNKxSTREAMS"):
+        bench_structri.Config(layouts=("160",))
 
 
 def test_per_frame_projection_matrices(scene):
