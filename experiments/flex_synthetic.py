@@ -4,9 +4,11 @@ Without ``--train`` it evaluates the models shipped in ``flex/assets`` (or ``--m
 trains them in ``OUT/models/<name>`` (kept in place, resumable: run the same command again after a kill), which
 is how the shipped ones were made. The test motion comes from the held-out clips shipped in mocap/assets (no data
 folder), or from ``--clips``: shipped clip names or any CMU motion files of one person (exp-map ``.txt`` of the
-CMU-Mocap benchmark, ``.amc`` beside its ``.asf``, ``.bvh`` in CMU's units), relative paths under ``--data-root``.
-Writes OUT/results.json, results.md, skeletons.png, mpjpe.png, log.jsonl and run.json, replacing OUT's previous
-outputs as a whole. Logic: :mod:`experiments.flex_study`.
+CMU-Mocap benchmark, ``.amc`` beside its ``.asf``, ``.bvh`` in CMU's units), relative paths under ``--data-root``,
+or ``--test-expmap``: the benchmark's whole test split. Besides random rigs it evaluates the fixed rigs (``--rigs``,
+the paper's protocol) with the rig models where they exist. Writes OUT/results.json, results.md, skeletons.png,
+mpjpe.png, rigs.png, log.jsonl and run.json, replacing OUT's previous outputs as a whole. Logic:
+:mod:`experiments.flex_study`.
 """
 
 from __future__ import annotations
@@ -18,10 +20,11 @@ from typing import Annotated
 import tyro
 
 from experiments import _cli
+import mocap
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
-from flex import SHIPPED_MODELS, load_models
+from flex import MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, load_models
 
-QUICK = dict(sequences=4)
+QUICK = dict(sequences=4, rigs=("h36m_ring",), perturbation_draws=2)
 """What --quick changes (where the option is not given another value)."""
 TRAIN_STEPS = 1500
 QUICK_TRAIN_STEPS = 100
@@ -32,15 +35,24 @@ class Config:
     out: Path
     """Output folder."""
     quick: bool = False
-    """Fewer test sequences (4); with --train, 100 training steps per model."""
+    """Fewer test sequences (4), one fixed rig (h36m_ring) with 2 perturbation draws; with --train, 100 training
+    steps per model."""
     train: bool = False
-    """Train the models (flex.MODELS) into OUT/models instead of using the shipped ones."""
+    """Train the models of --train-names into OUT/models (resumably) and use them instead of --model-dir's."""
+    train_names: tuple[str, ...] = tuple(MODELS)
+    """With --train: the models to train, names of flex.MODELS (default: all of them) or flex.RIG_MODELS
+    (flex_4views_h36m_ring, flex_4views_shelf); the others come from --model-dir."""
     train_steps: int | None = None
     """Training steps per model with --train (default 1500, --quick 100)."""
+    train_expmap: bool = False
+    """With --train: the training windows also come from the CMU-Mocap benchmark's train split
+    (DATA/cmu_expmap/train, in the data folder of --data-root); its test split never enters training."""
+    test_expmap: bool = False
+    """Test motion: the CMU-Mocap benchmark's test split (DATA/cmu_expmap/test, 24 files) instead of --clips."""
     model_dir: Path = SHIPPED_MODELS
     """Folder with one saved model per name (default: the shipped flex/assets)."""
     data_root: Path | None = None
-    """Folder that relative --clips paths are looked up in (default: $MVMOCAP_DATA_ROOT; not needed otherwise)."""
+    """Data folder of --train-expmap, --test-expmap and relative --clips paths (default: $MVMOCAP_DATA_ROOT)."""
     experiment: Annotated[ExperimentConfig, tyro.conf.OmitArgPrefixes] = ExperimentConfig()
     """The experiment."""
 
@@ -49,11 +61,28 @@ class Config:
             raise ValueError(f"--model-dir {self.model_dir} is not a folder")
         if self.train_steps is not None and self.train_steps < 1:
             raise ValueError(f"--train-steps must be >= 1, got {self.train_steps}")
-        self.test_clips()  # refuses a clip that is neither shipped nor a file before any work
+        unknown = sorted(set(self.train_names) - set(MODELS) - set(RIG_MODELS))
+        if unknown or not self.train_names:
+            raise ValueError(f"--train-names must name models of {sorted(MODELS) + sorted(RIG_MODELS)}, got {unknown}")
+        if self.train_expmap and not self.train:
+            raise ValueError("--train-expmap needs --train")
+        if self.test_expmap and self.experiment.clips != ExperimentConfig().clips:
+            raise ValueError("--test-expmap and --clips exclude each other")
+        self.train_clips(), self.test_clips()  # missing files or data folders are refused before any work
 
     def test_clips(self) -> tuple[str, ...]:
-        """``--clips`` with each file as a path that exists (relative ones found under the data folder)."""
+        """The test motion: ``--clips`` with each file as a path that exists (relative ones found under the data
+        folder), or the benchmark's test split."""
+        if self.test_expmap:
+            return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "test"))
         return _cli.clips_option(self.experiment.clips, self.data_root)
+
+    def train_clips(self) -> tuple[str, ...]:
+        """The motion files --train adds to the shipped training clips (absolute paths, so that the sample pools'
+        cache keys do not depend on the working folder)."""
+        if not self.train_expmap:
+            return ()
+        return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "train"))
 
 
 def main(config: Config) -> None:
@@ -63,11 +92,13 @@ def main(config: Config) -> None:
         if getattr(config.experiment, name) == getattr(default, name)})
     with _cli.run_folder(config.out, keep=("models",)) as out:
         log = _cli.jsonl_log(out)
+        models = {}
+        if not (config.train and MAIN_MODEL in config.train_names):
+            models = load_models(config.model_dir)
         if config.train:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
-            models = train_models(config.out / "models", steps, seed=experiment.seed, log=log)
-        else:
-            models = load_models(config.model_dir)
+            models |= train_models(config.out / "models", steps, seed=experiment.seed, names=config.train_names,
+                                   extra_clips=config.train_clips(), log=log)
         results = run_experiment(experiment, models, out, log=log)
         report = (out / "results.md").read_text()
     print(report)

@@ -11,17 +11,22 @@ itself lives in :mod:`experiments.flex_study`.
 from importlib.metadata import version as _version
 
 from ._baselines import baseline_cameras as baseline_cameras
+from ._baselines import camera_root as camera_root
 from ._baselines import motion_metrics as motion_metrics
+from ._baselines import root_position_error as root_position_error
 from ._baselines import triangulation_baseline as triangulation_baseline
 from ._baselines import MotionMetrics as MotionMetrics
+from ._data import fixed_rig as fixed_rig
 from ._data import local_rotations as local_rotations
 from ._data import make_batch as make_batch
 from ._data import make_sample as make_sample
+from ._data import rig_centre as rig_centre
 from ._data import root_frame as root_frame
 from ._data import sign_continuous as sign_continuous
 from ._data import symmetric_bone_lengths as symmetric_bone_lengths
 from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
+from ._data import FIXED_RIGS as FIXED_RIGS
 from ._export import to_bvh as to_bvh
 from ._losses import adversarial_loss as adversarial_loss
 from ._losses import contact_loss as contact_loss
@@ -47,6 +52,7 @@ from ._normalise import NormalisedInput as NormalisedInput
 from ._shipped import load_models as load_models
 from ._shipped import MAIN_MODEL as MAIN_MODEL
 from ._shipped import MODELS as MODELS
+from ._shipped import RIG_MODELS as RIG_MODELS
 from ._shipped import SHIPPED_MODELS as SHIPPED_MODELS
 from ._train import build_pool as build_pool
 from ._train import load_flex as load_flex

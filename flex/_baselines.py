@@ -25,7 +25,9 @@ Calibrations (:func:`baseline_cameras`): ``"exact"`` (every frame's true cameras
 (:func:`geometry.perturb_extrinsics_relative`: each extrinsic parameter (rotation vector, translation) times
 ``1 + scale N(0, 1)``, one draw per sequence and view, the same draw at every frame: moving cameras keep a
 relative error of ``scale`` on every frame's parameters, coherent in time, instead of a fresh error per frame that
-would add jitter no real calibration has; for static cameras this is perturbing once), and ``"static"`` (the
+would add jitter no real calibration has; for static cameras this is perturbing once; with ``per_sequence=False``
+one draw serves the whole batch: a fixed rig calibrated once, every sequence seen through the same error), and
+``"static"`` (the
 first frame's cameras at every frame: what a system calibrated once reports while the cameras move; equal to
 ``"exact"`` for static cameras).
 
@@ -53,7 +55,10 @@ Structural Triangulation solves a frame with an undetermined joint as regularise
 Metrics (:func:`motion_metrics`): MPJPE protocol #1 (root-relative, 17 joints, root included as in
 :func:`geometry.mpjpe_root_relative`, mm), acceleration error (:func:`geometry.acceleration_error`, second
 differences per frame, mm/frame^2) and MBLS (:func:`geometry.mbls`, the bone-length standard deviation over time
-on the STRUCTRI17 bones, mm), each per sequence and view, then averaged over both.
+on the STRUCTRI17 bones, mm), each per sequence and view, then averaged over both; and the global root position
+error (:func:`root_position_error`, mm, the paper's Sect. 4.2) between camera-frame roots in metres: FLEX's estimate,
+which is up to scale, made metric with the view's intrinsics (:func:`camera_root`), a baseline's triangulated root
+moved to the true camera (:func:`triangulation_baseline` ``with_root``).
 """
 
 from __future__ import annotations
@@ -72,7 +77,8 @@ from geometry import FLEX20, STRUCTRI17, Camera, Skeleton
 
 from ._data import Batch
 
-__all__ = ["MotionMetrics", "baseline_cameras", "motion_metrics", "triangulation_baseline"]
+__all__ = ["MotionMetrics", "baseline_cameras", "camera_root", "motion_metrics", "root_position_error",
+           "triangulation_baseline"]
 
 _ROOT = STRUCTRI17.index("mid_hip")
 _METHODS = ("dlt", "structural")
@@ -91,10 +97,12 @@ def baseline_cameras(
     calibration: Literal["exact", "perturbed", "static"],
     key: PRNGKeyArray | None = None,
     scale: Float[ArrayLike, ""] | float = 0.03,
+    per_sequence: bool = True,
 ) -> Camera:
     """The calibration a baseline is given (module docstring), leaves ``(batch, views, frames, ...)`` like
-    ``cameras`` (a :class:`~flex.Batch`'s). ``key`` (needed for ``"perturbed"`` only) is split over the batch;
-    ``scale`` is the relative standard deviation of the perturbation (0.03 for 3 %)."""
+    ``cameras`` (a :class:`~flex.Batch`'s). ``key`` (needed for ``"perturbed"`` only) is split over the batch, or,
+    with ``per_sequence=False``, used for every sequence (one draw for a fixed rig); ``scale`` is the relative
+    standard deviation of the perturbation (0.03 for 3 %)."""
     batch_size, _, _ = _check_cameras(cameras)
     if calibration == "exact":
         return cameras
@@ -111,7 +119,9 @@ def baseline_cameras(
         return jax.vmap(lambda frame: geometry.perturb_extrinsics_relative(sequence_key, frame, scale),
                         in_axes=1, out_axes=1)(rig)
 
-    return jax.vmap(sequence)(jax.random.split(key, batch_size), cameras)
+    if per_sequence:
+        return jax.vmap(sequence)(jax.random.split(key, batch_size), cameras)
+    return jax.vmap(sequence, in_axes=(None, 0))(key, cameras)
 
 
 def _nearest_determined(
@@ -161,13 +171,14 @@ def _structural(
 
 
 @functools.partial(jax.jit, static_argnames=("method", "n_steps"))
-def _root_relative(
+def _triangulate(
     P: Float[Array, "batch views frames 3 4"], points: Float[Array, "batch views frames 17 2"],
     weights: Float[Array, "batch views frames 17"], R: Float[Array, "batch views frames 3 3"],
+    true_R: Float[Array, "batch views frames 3 3"], true_t: Float[Array, "batch views frames 3"],
     method: Literal["dlt", "structural"], n_steps: int,
-) -> Float[Array, "batch views frames 17 3"]:
-    """Triangulate through ``P``, fill the undetermined joints, rotate the root-relative pose by ``R``. One
-    compilation per method and shape, whatever the calibration."""
+) -> tuple[Float[Array, "batch views frames 17 3"], Float[Array, "batch views frames 3"]]:
+    """Triangulate through ``P``, fill the undetermined joints and roots; the root-relative pose rotated by ``R``,
+    and the root in the true cameras' frames. One compilation per method and shape, whatever the calibration."""
     # Frames-first per sequence: (B, T, K, ...), the layout the solvers batch over.
     P, points, weights = (jnp.moveaxis(x, 2, 1) for x in (P, points, weights))
     if method == "dlt":
@@ -176,7 +187,9 @@ def _root_relative(
         world, determined = jax.vmap(lambda *a: _structural(*a, n_steps))(P, points, weights)
     offsets = world - world[..., _ROOT:_ROOT + 1, :]
     offsets = jax.vmap(_nearest_determined)(offsets, determined & determined[..., _ROOT:_ROOT + 1])
-    return jnp.einsum("bktij,btnj->bktni", R, offsets)
+    root = jax.vmap(_nearest_determined)(world[..., _ROOT:_ROOT + 1, :], determined[..., _ROOT:_ROOT + 1])[..., 0, :]
+    return (jnp.einsum("bktij,btnj->bktni", R, offsets),
+            jnp.einsum("bktij,btj->bkti", true_R, root) + true_t)
 
 
 def triangulation_baseline(
@@ -188,7 +201,10 @@ def triangulation_baseline(
     scale: Float[ArrayLike, ""] | float = 0.03,
     frame: Literal["true", "calibration"] = "true",
     n_steps: int = 3,
-) -> Float[Array, "batch views frames 17 3"]:
+    per_sequence: bool = True,
+    with_root: bool = False,
+) -> Float[Array, "batch views frames 17 3"] | tuple[Float[Array, "batch views frames 17 3"],
+                                                     Float[Array, "batch views frames 3"]]:
     """A triangulation baseline's camera-frame, root-relative STRUCTRI17 joints (metres), like ``batch.joints``.
 
     Args:
@@ -201,9 +217,18 @@ def triangulation_baseline(
         frame: ``"true"`` or ``"calibration"``: whose rotation takes the world pose to each camera frame
             (module docstring).
         n_steps: SCA steps of the structural method.
+        per_sequence: ``"perturbed"``: a draw per sequence (True) or one for the batch (:func:`baseline_cameras`).
+        with_root: also return the triangulated root (``mid_hip``) in each view's true camera frame (metres; a
+            frame whose root is not determined takes the nearest determined frame's): ``(joints, root)``, the
+            global position :func:`camera_root` gives for FLEX.
 
     Pure and jittable with ``method``, ``calibration``, ``frame`` and ``n_steps`` static.
     """
+    joints, root = _baseline(batch, method, calibration, key, scale, frame, n_steps, per_sequence)
+    return (joints, root) if with_root else joints
+
+
+def _baseline(batch, method, calibration, key, scale, frame, n_steps, per_sequence):
     if method not in _METHODS:
         raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
     if frame not in _FRAMES:
@@ -217,9 +242,31 @@ def triangulation_baseline(
         raise ValueError(f"triangulation needs at least 2 views, got {views}")
     if not isinstance(batch.cameras.dist, jax.core.Tracer) and np.any(np.asarray(batch.cameras.dist) != 0):
         raise ValueError("the baselines use linear projections: pass undistorted cameras and pixels")
-    given = baseline_cameras(batch.cameras, calibration, key, scale)
+    given = baseline_cameras(batch.cameras, calibration, key, scale, per_sequence)
     R = (batch.cameras if frame == "true" else given).R
-    return _root_relative(geometry.projection_matrix(given), points, weights, jnp.asarray(R), method, int(n_steps))
+    return _triangulate(geometry.projection_matrix(given), points, weights, jnp.asarray(R), jnp.asarray(batch.cameras.R),
+                        jnp.asarray(batch.cameras.t), method, int(n_steps))
+
+
+def camera_root(
+    root_position: Float[ArrayLike, "*b frames 3"], centre: Float[ArrayLike, "*b 2"], scale: Float[ArrayLike, "*b"],
+    K: Float[ArrayLike, "*b frames 3 3"],
+) -> Float[Array, "*b frames 3"]:
+    """A root ``(x d, y d, d)`` in a view's normalised camera (FLEX's ``root_position``, a
+    :class:`~flex.Batch`'s) in that view's camera frame, metres: depth ``Z = d f / scale`` (``f`` the mean of the
+    focal lengths, as the samples use) and the root's pixel ``x scale + centre`` back-projected through ``K`` at
+    that depth. ``centre`` and ``scale`` are the input normalisation's (:func:`~flex.normalise_2d`, FLEX's
+    outputs). This is where the intrinsics enter: FLEX itself estimates the root up to the scale ``f / scale``."""
+    root_position, centre, scale, K = (jnp.asarray(a) for a in (root_position, centre, scale, K))
+    focal = jnp.stack([K[..., 0, 0], K[..., 1, 1]], axis=-1)
+    depth = root_position[..., 2] * jnp.mean(focal, axis=-1) / scale[..., None]
+    pixels = root_position[..., :2] / root_position[..., 2:] * scale[..., None, None] + centre[..., None, :]
+    return jnp.concatenate([(pixels - K[..., :2, 2]) / focal * depth[..., None], depth[..., None]], axis=-1)
+
+
+def root_position_error(pred: Float[ArrayLike, "*b 3"], gt: Float[ArrayLike, "*b 3"]) -> Float[Array, ""]:
+    """Global root position error: the mean distance between predicted and true camera-frame roots, mm."""
+    return 1000.0 * jnp.mean(jnp.linalg.norm(jnp.asarray(pred) - jnp.asarray(gt), axis=-1))
 
 
 class MotionMetrics(NamedTuple):

@@ -10,7 +10,9 @@ A sample (:func:`make_sample`) takes ``frames`` consecutive frames of one person
   setting): every camera orbits at its own angular, radial and vertical speed around a centre that follows the
   person partway, and pans and tilts to track the root plus its offset, so extrinsics and the relative poses
   between cameras change during the sequence. Ring radii grow with the extent of the person's path so that no
-  camera comes closer than ``distance[0]``.
+  camera comes closer than ``distance[0]``. With ``rig`` set, every sample is seen by the same fixed cameras
+  instead (the paper's protocol: one rig, Human3.6M's), and the person moves: its path is turned about the vertical
+  by a random heading and centred on a random point near the rig's centre (:func:`fixed_rig`, :func:`rig_centre`).
 - **2D joints**: the detector model of :mod:`mocap` (:func:`mocap.detect_with_events`: noise scaled by the
   apparent size, occlusion, left/right swaps, misses, confidences) runs on the BODY25 joints of every person of
   the clip (the two-person clips' partner occludes the person: mutual occlusion), each view
@@ -48,8 +50,8 @@ from geometry import BODY25, FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_REST_DIRECTION
 from ._normalise import normalise_2d
 
 __all__ = [
-    "Batch", "DataConfig", "local_rotations", "make_batch", "make_sample", "root_frame", "sign_continuous",
-    "symmetric_bone_lengths",
+    "Batch", "DataConfig", "FIXED_RIGS", "fixed_rig", "local_rotations", "make_batch", "make_sample", "rig_centre",
+    "root_frame", "sign_continuous", "symmetric_bone_lengths",
 ]
 
 _ROOT = STRUCTRI17.index("mid_hip")
@@ -74,6 +76,38 @@ def _proxy_matrix() -> np.ndarray:
 
 _PROXIES = _proxy_matrix()
 
+FIXED_RIGS: tuple[str, ...] = ("h36m_ring", "shelf")
+"""Named fixed rigs of :attr:`DataConfig.rig` (:func:`fixed_rig`)."""
+
+
+@functools.cache
+def fixed_rig(name: str) -> Camera:
+    """A fixed rig (metres, z-up world, no distortion), by name or calibration file:
+
+    - ``"h36m_ring"``: four cameras like Human3.6M's (not its calibration): at the corners of a square, 5 m from its
+      centre, 1.6 m high, aimed at a point 1 m above the centre, focal length 1145 px, 1000 x 1000 px images;
+    - ``"shelf"``: the real Shelf calibration (:func:`mocap.shelf_cameras`, 5 cameras, 1032 x 776 px);
+    - a path: any calibration file or folder :func:`geometry.load_calibration` reads (its lens distortion, if any,
+      is dropped: samples are projected and triangulated without it)."""
+    if name == "h36m_ring":
+        return geometry.ring_rig(4, radius=5.0, target=(0.0, 0.0, 1.0), height=1.6, focal=1145.0,
+                                 image_size=(1000.0, 1000.0), start_angle=np.pi / 4)
+    if name == "shelf":
+        rig = mocap.shelf_cameras()
+    elif Path(name).exists():
+        rig = geometry.load_calibration(name).rig
+    else:
+        raise ValueError(f"rig must be one of {FIXED_RIGS} or a calibration file, got {name!r}")
+    return rig._replace(dist=jnp.zeros_like(rig.dist))
+
+
+def rig_centre(rig: Camera) -> Float[np.ndarray, "3"]:
+    """The point nearest (least squares) to every camera's optical axis: where a rig looks (metres)."""
+    R, centres = np.asarray(rig.R, np.float64), np.asarray(geometry.camera_centre(rig), np.float64)
+    axes = R[:, 2]  # each camera's z axis in world coordinates
+    across = np.eye(3) - axes[:, :, None] * axes[:, None, :]  # projections orthogonal to each axis
+    return np.linalg.solve(across.sum(0), np.einsum("vij,vj->i", across, centres))
+
 
 @dataclasses.dataclass(frozen=True)
 class DataConfig:
@@ -86,6 +120,12 @@ class DataConfig:
     """Shipped clip names or paths of motion files (:func:`mocap.load_clip_file`); None: all shipped clips
     (:func:`mocap.list_clips`)."""
     camera_motion: Literal["static", "dynamic"] = "static"
+    rig: str | None = None
+    """None: every sample draws its own cameras (the settings below). Otherwise a fixed rig (:func:`fixed_rig`:
+    ``"h36m_ring"``, ``"shelf"`` or a calibration file) seen through its first ``views`` cameras, static."""
+    placement_radius: float = 0.5
+    """With a fixed rig: the person's mean root is placed uniformly within this distance (metres, horizontal) of
+    the rig's centre (:func:`rig_centre`), its path turned by a uniform random heading."""
     distance: tuple[float, float] = (3.5, 6.0)
     """Horizontal distance of a camera from the person's mean root (plus the path's extent), uniform."""
     height: tuple[float, float] = (0.8, 2.2)
@@ -116,6 +156,15 @@ class DataConfig:
             low, high = getattr(self, name)
             if not 0 < low <= high:
                 raise ValueError(f"{name} must be a range 0 < low <= high, got {(low, high)}")
+        if self.rig is not None:
+            if self.camera_motion != "static":
+                raise ValueError(f"a fixed rig ({self.rig!r}) has static cameras, got camera_motion="
+                                 f"{self.camera_motion!r}")
+            available = fixed_rig(self.rig).num_views
+            if self.views > available:
+                raise ValueError(f"rig {self.rig!r} has {available} cameras, fewer than views={self.views}")
+        if not self.placement_radius >= 0:
+            raise ValueError(f"placement_radius must be >= 0 metres, got {self.placement_radius}")
         unknown = sorted(c for c in set(self.clip_names) - set(mocap.list_clips()) if not Path(c).is_file())
         if not self.clip_names or unknown:
             raise ValueError(f"clips must be shipped clips ({mocap.list_clips()}) or motion files, got unknown "
@@ -274,6 +323,23 @@ def _cameras(rng: np.random.Generator, config: DataConfig, root: np.ndarray, fps
                   np.zeros((k, frames, 5)), np.broadcast_to(np.asarray(config.image_size), (k, frames, 2)))
 
 
+def _on_fixed_rig(rng: np.random.Generator, config: DataConfig, h36m: np.ndarray, body25: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, Camera]:
+    """The window's people (STRUCTRI17 ``(T, 17, 3)``, BODY25 ``(T, people, 25, 3)``, world metres) turned about
+    the vertical and moved to the fixed rig (:attr:`DataConfig.placement_radius`), and the rig per frame."""
+    rig = fixed_rig(config.rig)
+    heading = rng.uniform(0.0, 2.0 * np.pi)
+    c, s = np.cos(heading), np.sin(heading)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    angle, radius = rng.uniform(0.0, 2.0 * np.pi), config.placement_radius * np.sqrt(rng.uniform())
+    place = rig_centre(rig)[:2] + radius * np.array([np.cos(angle), np.sin(angle)])
+    shift = np.append(place - (h36m[:, _ROOT] @ turn.T).mean(0)[:2], 0.0)
+    frames = h36m.shape[0]
+    cameras = jax.tree.map(lambda leaf: np.broadcast_to(np.asarray(leaf, np.float64)[:config.views, None],
+                                                        (config.views, frames) + np.shape(leaf)[1:]), rig)
+    return h36m @ turn.T + shift, body25 @ turn.T + shift, cameras
+
+
 def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray, person: int, h36m: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per view: ``person``'s detected STRUCTRI17 pixels (views, T, 17, 2) and confidences (views, T, 17), and the
@@ -329,7 +395,10 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
     lowest = h36m[:, _FEET, 2].min()
     h36m = h36m[window]
 
-    cameras = _cameras(rng, config, h36m[:, _ROOT], clip.fps)
+    if config.rig is None:
+        cameras = _cameras(rng, config, h36m[:, _ROOT], clip.fps)
+    else:
+        h36m, body25, cameras = _on_fixed_rig(rng, config, h36m, body25)
     points, confidences, exact = _detect(detector_key, config, cameras, body25, person, h36m)
     camera_joints = np.einsum("ktij,tnj->ktni", cameras.R, h36m) + cameras.t[:, :, None, :]  # (K, T, 17, 3)
     normalised = normalise_2d(points, confidences, _ROOT)

@@ -198,6 +198,9 @@ class FlexOutputs(NamedTuple):
     """``joints_relative`` plus ``root_position``."""
     scale: Float[Array, "batch views"]
     """The input normalisation's pixels per unit (:func:`~flex.normalise_2d`): metric depth is ``d f / scale``."""
+    centre: Float[Array, "batch views 2"]
+    """The input normalisation's origin in pixels (:func:`~flex.normalise_2d`); with ``scale`` and the intrinsics,
+    :func:`~flex.camera_root` turns ``root_position`` into metres."""
 
 
 def _unit_quaternion(q: Float[Array, "*b 4"]) -> Float[Array, "*b 4"]:
@@ -449,6 +452,7 @@ class Flex(nnx.Module):
             rotations=_unit_quaternion(rotations), root_rotations=_unit_quaternion(root_rotations),
             contacts=contacts, root_depth=depth, root_position=root_position, bone_lengths=bone_lengths,
             joints_relative=relative, joints=relative + root_position[..., None, :], scale=normalised.scale,
+            centre=normalised.centre,
         )
 
 

@@ -8,7 +8,7 @@ from typing import Literal
 from ._model import Flex
 from ._train import load_flex
 
-__all__ = ["MAIN_MODEL", "MODELS", "SHIPPED_MODELS", "load_models"]
+__all__ = ["MAIN_MODEL", "MODELS", "RIG_MODELS", "SHIPPED_MODELS", "load_models"]
 
 SHIPPED_MODELS = Path(__file__).parent / "assets"
 MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
@@ -19,14 +19,17 @@ MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
     "late_fusion_4views": (4, "late"),
 }
 """The experiment's models: name -> (views, fusion), each the ``"small"`` config otherwise."""
+RIG_MODELS: dict[str, str] = {"flex_4views_h36m_ring": "h36m_ring", "flex_4views_shelf": "shelf"}
+"""FLEX (4 views, early fusion, the ``"small"`` config) trained on one fixed rig (:attr:`~flex.DataConfig.rig`), the
+paper's protocol: name -> rig."""
 MAIN_MODEL = "flex_4views"
 """The model of :data:`MODELS` that the experiment cannot run without (FLEX, 4 views, early fusion)."""
 
 
 def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
-    """The :data:`MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent ablation models are left
-    out, an absent main model is an error."""
+    """The :data:`MODELS` and :data:`RIG_MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent
+    ablation and rig models are left out, an absent main model is an error."""
     if not (Path(model_dir) / MAIN_MODEL / "state.npz").is_file():
         raise FileNotFoundError(f"{model_dir} has no saved main model {MAIN_MODEL}/ (config.json, state.npz)")
-    return {name: load_flex(Path(model_dir) / name) for name in MODELS
+    return {name: load_flex(Path(model_dir) / name) for name in (*MODELS, *RIG_MODELS)
             if (Path(model_dir) / name / "state.npz").is_file()}

@@ -107,6 +107,9 @@ class TrainConfig:
         shared = set(self.data.clip_names) & set(self.validation_data.clip_names)
         if shared:
             raise ValueError(f"training and validation share clips {sorted(shared)}")
+        held_out = sorted(c for c in self.data.clip_names if c in TEST_CLIPS or mocap.cmu_expmap_split(c) == "test")
+        if held_out:
+            raise ValueError(f"training clips include held-out test motion {held_out}")
 
     @property
     def model_config(self) -> FlexConfig:

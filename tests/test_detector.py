@@ -1,5 +1,7 @@
 """The 2D detector model: structure, exactness without noise, occlusion geometry, event rates."""
 
+import dataclasses
+
 import cv2
 import jax
 import jax.numpy as jnp
@@ -233,3 +235,24 @@ def test_occlusion_splits_into_self_and_others():
     by_others = events.reported[:, 0, 1][:, hidden & body].mean()
     self_hidden = (geo.self_occlusion[0, 1, 1] > 0.9) & body  # far-side limbs in profile
     assert self_hidden.sum() >= 3 and events.reported[:, 1, 1][:, self_hidden].mean() > by_others + 0.15
+
+
+@pytest.mark.parametrize("correlation", [0.0, 0.9])
+def test_pixel_noise_correlation_in_time(correlation):
+    """A still person seen by one camera for 400 frames: the reported positions' errors have the configured lag-1
+    correlation and keep their per-frame spread (``pixel_noise`` of the apparent height)."""
+    rig = make_rig([(0.0, -4.0, 1.2)])
+    joints = np.broadcast_to(person(0.0, 0.0)[None, None], (400, 1, 25, 3))
+    config = dataclasses.replace(PERFECT_DETECTOR, pixel_noise=0.01, noise_correlation=correlation)
+    frames, events = detect_with_events(jax.random.key(2), rig, joints, config)
+    found = mocap.oracle_keypoints(mocap.pad_detections(frames), 1)[:, 0, 0]  # (frames, 25, 3)
+    error = (found[..., :2] - events.geometry.pixels[:, 0, 0])[:, found[0, :, 2] > 0]  # (frames, joints, 2)
+    lag1 = np.mean(error[1:] * error[:-1]) / np.mean(error**2)
+    assert abs(lag1 - correlation) < 0.05
+    spread = 0.01 * events.geometry.apparent_height[0, 0, 0]
+    assert 0.8 * spread < np.sqrt(np.mean(error**2)) < 1.2 * spread
+
+
+def test_noise_correlation_must_be_below_one():
+    with pytest.raises(ValueError, match="noise_correlation"):
+        DetectorConfig(noise_correlation=1.0)

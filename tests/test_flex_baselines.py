@@ -10,7 +10,8 @@ import geometry
 import mocap
 import structri
 from geometry import FLEX20, STRUCTRI17
-from flex import DataConfig, baseline_cameras, make_batch, motion_metrics, triangulation_baseline
+from flex import (DataConfig, baseline_cameras, camera_root, make_batch, motion_metrics, normalise_2d,
+                  root_position_error, triangulation_baseline)
 
 # Every batch has the same shapes (2 sequences, 4 views, 16 frames), so each kernel compiles once.
 STATIC = DataConfig(views=4, frames=16)
@@ -74,6 +75,35 @@ def test_perturbation_is_one_draw_per_sequence_and_view(dynamic):
     assert_array_equal(perturbed.K, cameras.K)
     with pytest.raises(ValueError, match="key"):
         baseline_cameras(cameras, "perturbed")
+
+
+def test_a_fixed_rig_is_perturbed_once_for_every_sequence():
+    batch = make_batch(jax.random.key(3), DataConfig(views=4, frames=16, rig="h36m_ring"), 2)
+    cameras = jax.tree.map(jnp.asarray, batch.cameras)
+    ratio = np.asarray(baseline_cameras(cameras, "perturbed", KEY, 0.03, per_sequence=False).t / cameras.t)
+    assert_allclose(ratio, np.broadcast_to(ratio[:1, :, :1], ratio.shape), rtol=1e-12)  # one draw per view
+    assert len(np.unique(ratio[0, :, 0].round(12), axis=0)) == 4
+    shared = triangulation_baseline(batch, "dlt", "perturbed", KEY, per_sequence=False)
+    assert not np.allclose(shared, triangulation_baseline(batch, "dlt", "perturbed", KEY))
+
+
+def _true_root(batch):
+    normalised = normalise_2d(batch.points_2d, batch.confidences, ROOT)
+    return camera_root(batch.root_position, normalised.centre, normalised.scale, batch.cameras.K)
+
+
+def test_the_metric_root_of_the_ground_truth_is_where_exact_triangulation_puts_it(perfect, noisy):
+    """Two independent routes to the camera-frame root: the samples' normalised ``root_position`` made metric with
+    the intrinsics, and the DLT through the exact cameras of exact 2D."""
+    joints, root = triangulation_baseline(perfect, "dlt", with_root=True)
+    assert_allclose(_true_root(perfect), root, atol=1e-6)
+    assert_array_equal(joints, triangulation_baseline(perfect, "dlt"))
+    truth = _true_root(noisy)
+    exact = float(root_position_error(triangulation_baseline(noisy, "structural", with_root=True)[1], truth))
+    perturbed = float(root_position_error(triangulation_baseline(
+        noisy, "structural", "perturbed", KEY, scale=0.04, frame="calibration", with_root=True)[1], truth))
+    assert 0 < exact < perturbed
+    assert_allclose(root_position_error(np.asarray(truth) + [0.003, 0.0, 0.004], truth), 5.0, rtol=1e-6)
 
 
 def test_structural_triangulation_keeps_bones_steadier_than_dlt(noisy):

@@ -9,8 +9,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 import geometry
 from geometry import FLEX20, FLEX20_ROTATING, STRUCTRI17
 from flex import (
-    DataConfig, flex_forward_kinematics, local_rotations, make_batch, make_sample, normalise_2d, sign_continuous,
-    symmetric_bone_lengths,
+    DataConfig, fixed_rig, flex_forward_kinematics, local_rotations, make_batch, make_sample, normalise_2d, rig_centre,
+    sign_continuous, symmetric_bone_lengths,
 )
 
 # The shapes of tests/test_flex_model.py's batch, so that a joint run compiles the geometry kernels once.
@@ -167,6 +167,49 @@ def test_config_validation():
         DataConfig(clips=("no_such_clip",))
     with pytest.raises(ValueError, match="distance"):
         DataConfig(distance=(3.0, 2.0))
+
+
+@pytest.mark.parametrize("rig", ["h36m_ring", "shelf"])
+def test_a_fixed_rig_sees_every_sample_and_the_person_moves_to_it(rig):
+    """The rig's first views at every frame of every sample; the person's mean root within ``placement_radius`` of
+    the rig's centre (the point its optical axes meet), at a different place and heading in each sample; the
+    ground truth is the person seen through those cameras."""
+    config = DataConfig(views=4, frames=16, rig=rig, placement_radius=0.5)
+    batch = make_batch(jax.random.key(4), config, 3)
+    cameras = fixed_rig(rig)
+    for name in ("K", "R", "t"):
+        assert_allclose(getattr(batch.cameras, name), np.broadcast_to(
+            np.asarray(getattr(cameras, name))[None, :4, None], getattr(batch.cameras, name).shape), atol=1e-6)
+    centre = rig_centre(cameras)
+    means = np.stack([_world_root(batch, sample).mean(0) for sample in range(3)])
+    assert np.all(np.linalg.norm(means[:, :2] - centre[:2], axis=-1) <= 0.5 + 1e-6)
+    assert len(np.unique(means[:, :2].round(6), axis=0)) == 3
+    assert np.mean(batch.confidences > 0) > 0.5
+
+
+def _world_root(batch, sample) -> np.ndarray:
+    """The root's world path (frames, 3) back from view 0's ``root_position`` (``(x d, y d, d)`` of the exact root
+    projection, :func:`flex.root_frame`) and the view's true camera."""
+    normalised = normalise_2d(batch.points_2d[sample], batch.confidences[sample], STRUCTRI17.index("mid_hip"))
+    K, R, t = (np.asarray(x[sample, 0, 0]) for x in (batch.cameras.K, batch.cameras.R, batch.cameras.t))
+    scale, centre = float(normalised.scale[0]), np.asarray(normalised.centre[0])
+    x, d = np.asarray(batch.root_position[sample, 0, :, :2]), np.asarray(batch.root_position[sample, 0, :, 2:])
+    depth = d * K[0, 0] / scale
+    pixels = x / d * scale + centre
+    in_camera = np.concatenate([(pixels - K[:2, 2]) / K[0, 0] * depth, depth], axis=-1)
+    return (in_camera - t) @ R
+
+
+def test_fixed_rig_options_are_checked():
+    with pytest.raises(ValueError, match="static cameras"):
+        DataConfig(rig="h36m_ring", camera_motion="dynamic")
+    with pytest.raises(ValueError, match="4 cameras, fewer than views=5"):
+        DataConfig(views=5, rig="h36m_ring")
+    with pytest.raises(ValueError, match="calibration file"):
+        DataConfig(rig="no_such_rig")
+    with pytest.raises(ValueError, match="placement_radius"):
+        DataConfig(rig="shelf", placement_radius=-1.0)
+    assert_allclose(rig_centre(fixed_rig("h36m_ring")), [0.0, 0.0, 1.0], atol=1e-9)
 
 
 def test_flex20_skeleton_data():

@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose
 import training
 from experiments import _cli, flex_synthetic
 from experiments.flex_study import ExperimentConfig
-from flex import CONFIGS, MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch
+from flex import CONFIGS, MODELS, RIG_MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch
 
 FRAMES = 24
 
@@ -48,7 +48,7 @@ def test_averaged_monocular_of_identical_views_is_the_monocular_prediction(batch
 @pytest.mark.slow
 def test_the_experiment_writes_every_table_and_plot(tmp_path):
     """The command line on saved tiny models: every method, calibration and ablation is scored, finite; an
-    absent ablation model is skipped and named."""
+    absent ablation model is skipped and named. (The fixed rigs: tests/test_headline_results.py's quick run.)"""
     model_dir = tmp_path / "models"
     for seed, (name, (views, fusion)) in enumerate(MODELS.items()):
         if name == "late_fusion_4views":
@@ -56,8 +56,8 @@ def test_the_experiment_writes_every_table_and_plot(tmp_path):
         model = tiny(views, fusion, seed)
         training.save_model(model_dir / name, model.config, nnx.state(model))
     out = tmp_path / "out"
-    flex_synthetic.main(flex_synthetic.Config(out=out, model_dir=model_dir,
-                                              experiment=ExperimentConfig(sequences=2, frames=FRAMES)))
+    flex_synthetic.main(flex_synthetic.Config(out=out, model_dir=model_dir, experiment=ExperimentConfig(
+        sequences=2, frames=FRAMES, rigs=())))
     results = json.loads((out / "results.json").read_text())
     assert results["config"]["sequences"] == 2
     main = {(r["camera_motion"], r["input_2d"], r["method"], r["calibration"]) for r in results["main"]}
@@ -71,21 +71,26 @@ def test_the_experiment_writes_every_table_and_plot(tmp_path):
     variants = [(r["camera_motion"], r["variant"]) for r in results["ablations"]]
     assert len(variants) == 2 * 6 and ("dynamic", "averaged monocular") in variants
     assert ("dynamic", "late fusion") not in variants and results["missing_models"] == ["late_fusion_4views"]
+    assert results["rigs"] == []
     for row in results["main"] + results["ablations"]:
         assert all(np.isfinite(row[k]) and row[k] >= 0 for k in ("mpjpe_mm", "acceleration_error_mm", "mbls_mm"))
+    assert all(np.isfinite(row["root_error_mm"]) for row in results["main"])
     exact_gt = [r for r in results["main"] if r["input_2d"] == "gt" and r["calibration"] == "exact"]
     assert all(r["mpjpe_mm"] < 5 for r in exact_gt)  # exact 2D and cameras: triangulation is exact
     assert "Structural Triangulation" in (out / "results.md").read_text()
     for name in ("skeletons.png", "mpjpe.png", "log.jsonl"):
         assert (out / name).stat().st_size > 0
-    assert len((out / "log.jsonl").read_text().splitlines()) == len(results["main"]) + len(results["ablations"])
+    assert len((out / "log.jsonl").read_text().splitlines()) == sum(
+        len(results[table]) for table in ("main", "ablations", "rigs"))
 
 
 def test_help_explains_every_option(capsys):
     with pytest.raises(SystemExit):
         _cli.parse(flex_synthetic.Config, ["--help"], prog="flex_synthetic")
     text = capsys.readouterr().out
-    for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames"):
+    for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames",
+                   "--train-names", "--train-expmap", "--test-expmap", "--rigs", "--perturbation-draws",
+                   "--noise-correlation"):
         assert option in text
     assert ExperimentConfig().sequences == 16
 
@@ -99,10 +104,25 @@ def test_help_explains_every_option(capsys):
     ("plot_views", (0, 0), "plot_views must be distinct views of 0..3"),
     ("plot_views", (4,), "plot_views must be distinct views of 0..3"),
     ("plot_frames", 0, "plot_frames must be in 1..frames=64"),
+    ("rigs", ("h36m_ring", "h36m_ring"), "rigs must be distinct names"),
+    ("rigs", ("nowhere",), "rigs must be distinct names"),
+    ("perturbation_draws", 1, "perturbation_draws must be >= 2"),
+    ("noise_correlation", 1.0, "noise_correlation must be in"),
 ])
 def test_a_bad_option_is_refused_by_name(option, value, message):
     with pytest.raises(ValueError, match=message):
         ExperimentConfig(**{option: value})
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"train_names": ("flex_9views",)}, "--train-names must name models of"),
+    ({"train_expmap": True}, "--train-expmap needs --train"),
+    ({"test_expmap": True, "experiment": ExperimentConfig(clips=("02_01_walk",))},
+     "--test-expmap and --clips exclude each other"),
+])
+def test_a_bad_command_line_is_refused_before_any_work(tmp_path, options, message):
+    with pytest.raises(ValueError, match=message):
+        flex_synthetic.Config(out=tmp_path, **options)
 
 
 def test_a_model_folder_without_the_main_model_is_named(tmp_path):
@@ -112,6 +132,6 @@ def test_a_model_folder_without_the_main_model_is_named(tmp_path):
 
 def test_every_experiment_model_is_shipped():
     models = load_models()
-    assert set(models) == set(MODELS)
+    assert set(models) == set(MODELS) | {"flex_4views_h36m_ring"} and set(RIG_MODELS) >= {"flex_4views_h36m_ring"}
     for name, (views, fusion) in MODELS.items():
         assert (models[name].config.views, models[name].config.fusion) == (views, fusion)

@@ -88,7 +88,7 @@ def test_cpu_output_shapes(outputs):
     expected = {
         "rotations": (b, t, 14, 4), "root_rotations": (b, k, t, 4), "contacts": (b, t, 2), "root_depth": (b, k, t),
         "root_position": (b, k, t, 3), "bone_lengths": (b, 10), "joints_relative": (b, k, t, 20, 3),
-        "joints": (b, k, t, 20, 3), "scale": (b, k),
+        "joints": (b, k, t, 20, 3), "scale": (b, k), "centre": (b, k, 2),
     }
     assert {name: value.shape for name, value in outputs._asdict().items()} == expected
     assert all(bool(jnp.all(jnp.isfinite(value))) for value in outputs)
@@ -144,13 +144,15 @@ def test_fk_layer_normalises_quaternions_and_treats_zero_as_identity():
 
 def test_model_is_invariant_to_each_views_image_similarity(run, batch, outputs):
     """No calibration enters: another focal length / principal point / image size (a per-view shift and
-    isotropic scale of the pixels) leaves every output unchanged except the normalisation scale."""
+    isotropic scale of the pixels) leaves every output unchanged except the normalisation's scale and centre."""
     scale = jnp.asarray([0.5, 1.0, 2.0, 3.3])[None, :, None, None, None]
     shift = jnp.asarray([[100.0, -40.0], [0.0, 0.0], [-300.0, 7.0], [12.0, 900.0]])[None, :, None, None, :]
     moved = run(batch.points_2d * scale + shift, batch.confidences)
     for name, a, b in zip(outputs._fields, outputs, moved):
         if name == "scale":
             assert_allclose(b, a * scale[..., 0, 0, 0], rtol=1e-9)
+        elif name == "centre":
+            assert_allclose(b, a * scale[..., 0, 0, :] + shift[:, :, 0, 0], rtol=1e-9)
         else:
             assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=name)
 

@@ -14,6 +14,7 @@ from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose, assert_array_equal
 
 import flex
+import mocap
 import training
 from flex import _train
 from _training_harness import Killed, assert_same_parameters, kill_at, run_on_two_devices
@@ -122,6 +123,14 @@ def test_config_errors(cache_dir):
         _config(cache_dir, data=dataclasses.replace(DATA, views=3))
     with pytest.raises(ValueError, match="shorter than the model"):
         _config(cache_dir, data=dataclasses.replace(DATA, frames=8))
+    with pytest.raises(ValueError, match=r"held-out test motion \['02_05_punch'\]"):
+        _config(cache_dir, data=dataclasses.replace(DATA, clips=("02_01_walk", "02_05_punch")))
+
+
+def test_training_refuses_the_cmu_expmap_test_split(cache_dir, data_root):
+    test_file = str(mocap.cmu_expmap_files(data_root, "test")[0])
+    with pytest.raises(ValueError, match="held-out test motion"):
+        _config(cache_dir, data=dataclasses.replace(DATA, clips=("02_01_walk", test_file)))
 
 
 def test_late_fusion_runs_each_view_alone_before_fusing():
