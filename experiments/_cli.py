@@ -82,6 +82,12 @@ def clips_option(clips: Sequence[str], data_root: str | os.PathLike | None) -> t
         raise ValueError(f"--clips {error}" + ("" if root else " (relative paths need --data-root)")) from None
 
 
+def expmap_clips(data_root: str | os.PathLike | None, split: str) -> tuple[str, ...]:
+    """The CMU-Mocap benchmark's ``split`` files (:func:`mocap.cmu_expmap_files`) as absolute paths, so that caches
+    keyed on clip names do not depend on the working folder."""
+    return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(data_root, split))
+
+
 def jsonl_log(out: Path) -> Callable[[dict], None]:
     """``log(record)``: appends ``record`` as one JSON line to ``out/log.jsonl``, the file opened for each record so
     that every line written survives a kill."""

@@ -20,7 +20,6 @@ from typing import Annotated
 import tyro
 
 from experiments import _cli
-import mocap
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
 from flex import MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, load_models
 
@@ -74,15 +73,13 @@ class Config:
         """The test motion: ``--clips`` with each file as a path that exists (relative ones found under the data
         folder), or the benchmark's test split."""
         if self.test_expmap:
-            return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "test"))
+            return _cli.expmap_clips(self.data_root, "test")
         return _cli.clips_option(self.experiment.clips, self.data_root)
 
     def train_clips(self) -> tuple[str, ...]:
         """The motion files --train adds to the shipped training clips (absolute paths, so that the sample pools'
         cache keys do not depend on the working folder)."""
-        if not self.train_expmap:
-            return ()
-        return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "train"))
+        return _cli.expmap_clips(self.data_root, "train") if self.train_expmap else ()
 
 
 def main(config: Config) -> None:

@@ -84,7 +84,7 @@ class Config(jcsat_study.ShelfExperimentConfig):
     def expmap_clips(self) -> tuple[str, ...]:
         """The CMU-Mocap benchmark's train files (absolute paths, so the dataset cache key does not depend on the
         working folder)."""
-        return tuple(str(path.resolve()) for path in mocap.cmu_expmap_files(self.data_root, "train"))
+        return _cli.expmap_clips(self.data_root, "train")
 
 
 def train_config(config: Config) -> jcsat.TrainConfig:
