@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import partial
 from pathlib import Path
 
@@ -193,15 +193,16 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
 
 
 def train_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
-                      log: Callable[[dict], None] = lambda record: None, progress: bool = True
-                      ) -> dict[str, PoseForecaster]:
-    """Each of :data:`FORECASTERS` trained as ``config`` says (its ``model`` replaced), in ``workdir/<name>/``,
-    the data cached once for all; the models are copied to ``workdir/models/<name>``."""
+                      names: Iterable[str] = tuple(FORECASTERS), log: Callable[[dict], None] = lambda record: None,
+                      progress: bool = True) -> dict[str, PoseForecaster]:
+    """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced), in
+    ``workdir/<name>/``, the data cached once for all; the models are copied to ``workdir/models/<name>``."""
     workdir = Path(workdir)
     if config.cache_dir is None:
         config = dataclasses.replace(config, cache_dir=str((workdir / "data_cache").resolve()))
     models = {}
-    for name, model in FORECASTERS.items():
+    for name in names:
+        model = FORECASTERS[name]
         models[name] = train_forecaster(dataclasses.replace(config, model=model), workdir / _folder(name), body,
                                         resume=resume, log=lambda record, name=name: log({"model": name, **record}),
                                         progress=progress)

@@ -21,7 +21,7 @@ from typing import Literal
 
 import geometry
 import mocap
-from dynamics import (SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split, load_forecasters,
+from dynamics import (FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split, load_forecasters,
                       train_forecasters)
 from experiments import _cli
 from experiments.dynamics_study import run_forecast_study
@@ -41,6 +41,12 @@ class Config:
     """test: the benchmark's test files; validation: one training file per action, never trained on."""
     train: bool = False
     """Train the three forecasters into OUT/train (resumable) instead of using the shipped ones."""
+    train_steps: int | None = None
+    """With --train: steps per model (default: dynamics.ForecastTrainConfig's 1000)."""
+    train_batch: int | None = None
+    """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
+    train_names: tuple[str, ...] = tuple(FORECASTERS)
+    """With --train: the forecasters to train and score (default: all of dynamics.FORECASTERS)."""
     model_dir: Path = SHIPPED_FORECASTERS
     """Folder with the forecasters (default: the shipped dynamics/assets/forecasters)."""
     quick: bool = False
@@ -55,6 +61,21 @@ class Config:
             raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_expmap/)")
         if not self.train and not self.model_dir.is_dir():
             raise ValueError(f"--model-dir {self.model_dir} is not a folder")
+        for name in ("train_steps", "train_batch"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        unknown = sorted(set(self.train_names) - set(FORECASTERS))
+        if unknown or not self.train_names:
+            raise ValueError(f"--train-names must name forecasters of {sorted(FORECASTERS)}, got {unknown}")
+
+    def train_config(self, files: tuple[str, ...], validation_files: tuple[str, ...]) -> ForecastTrainConfig:
+        """The training run --train makes (before each forecaster's ``model`` is set)."""
+        config = ForecastTrainConfig(files, validation_files, seed=self.seed)
+        if self.quick:
+            return dataclasses.replace(config, **QUICK_TRAIN)
+        stage = dataclasses.replace(config.stage, **{name: value for name, value in (
+            ("steps", self.train_steps), ("batch_size", self.train_batch)) if value is not None})
+        return dataclasses.replace(config, stage=stage)
 
 
 def main(config: Config) -> None:
@@ -66,9 +87,8 @@ def main(config: Config) -> None:
     with _cli.run_folder(config.out, keep=("train",)) as out:
         log = _cli.jsonl_log(out)
         if config.train:
-            train_config = dataclasses.replace(ForecastTrainConfig(training_files, validation_files, seed=config.seed),
-                                               **(QUICK_TRAIN if config.quick else {}))
-            models = train_forecasters(train_config, workdir, body, resume=True, log=log, progress=config.progress)
+            models = train_forecasters(config.train_config(training_files, validation_files), workdir, body,
+                                       names=config.train_names, resume=True, log=log, progress=config.progress)
         else:
             models = load_forecasters(config.model_dir)
         summary = run_forecast_study(out, models, body, files, stride=QUICK_STRIDE if config.quick else 10,

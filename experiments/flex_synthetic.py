@@ -43,6 +43,12 @@ class Config:
     (flex_4views_h36m_ring, flex_4views_shelf); the others come from --model-dir."""
     train_steps: int | None = None
     """Training steps per model with --train (default 1500, --quick 100)."""
+    train_batch: int = 16
+    """With --train: windows per training step."""
+    train_pool: int | None = None
+    """With --train: training windows drawn once and cached (default: 4096 for a rig model, else 2048)."""
+    data_workers: int = 1
+    """With --train: processes that build the training windows."""
     train_expmap: bool = False
     """With --train: the training windows also come from the CMU-Mocap benchmark's train split
     (DATA/cmu_expmap/train, in the data folder of --data-root); its test split never enters training."""
@@ -58,8 +64,12 @@ class Config:
     def __post_init__(self) -> None:
         if not self.train and not self.model_dir.is_dir():
             raise ValueError(f"--model-dir {self.model_dir} is not a folder")
-        if self.train_steps is not None and self.train_steps < 1:
-            raise ValueError(f"--train-steps must be >= 1, got {self.train_steps}")
+        for name in ("train_steps", "train_pool"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        for name in ("train_batch", "data_workers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         unknown = sorted(set(self.train_names) - set(MODELS) - set(RIG_MODELS))
         if unknown or not self.train_names:
             raise ValueError(f"--train-names must name models of {sorted(MODELS) + sorted(RIG_MODELS)}, got {unknown}")
@@ -95,7 +105,8 @@ def main(config: Config) -> None:
         if config.train:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
             models |= train_models(config.out / "models", steps, seed=experiment.seed, names=config.train_names,
-                                   extra_clips=config.train_clips(), log=log)
+                                   extra_clips=config.train_clips(), batch_size=config.train_batch,
+                                   pool_size=config.train_pool, data_workers=config.data_workers, log=log)
         results = run_experiment(experiment, models, out, log=log)
         report = (out / "results.md").read_text()
     print(report)

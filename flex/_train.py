@@ -150,28 +150,46 @@ def _pool_file(config: DataConfig, count: int, first_seed: int, cache_dir: Path)
 
 
 def build_pool(config: DataConfig, count: int, first_seed: int, cache_dir: str | Path | None = None,
-               progress: bool = True) -> Batch:
+               progress: bool = True, workers: int = 1) -> Batch:
     """``count`` samples of ``config`` from seeds ``first_seed ...``, stacked (float32, cameras dropped: training
-    needs none), cached in ``cache_dir`` when given."""
+    needs none), cached in ``cache_dir`` when given. ``workers > 1`` builds them in that many CPU-only processes
+    (:func:`training.process_map`), the same samples in the same order."""
     path = None if cache_dir is None else _pool_file(config, count, first_seed, Path(cache_dir))
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return Batch(**{name: stored[name] for name in stored.files}, cameras=None)
-    samples = [make_sample(seed, config)._replace(cameras=None)
-               for seed in tqdm.trange(first_seed, first_seed + count, disable=not progress, desc="flex samples")]
-    pool = jax.tree.map(lambda *leaves: np.stack(leaves).astype(np.float32), *samples)
+    if workers == 1:
+        samples = [make_sample(seed, config)._replace(cameras=None)
+                   for seed in tqdm.trange(first_seed, first_seed + count, disable=not progress, desc="flex samples")]
+        pool = _stack(samples)
+    else:
+        bounds = np.linspace(first_seed, first_seed + count, min(count, 8 * workers) + 1).astype(int)
+        pool = _concatenate(training.process_map(
+            _sample_range, [(config, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])], workers))
     if path is not None:
         arrays = {name: value for name, value in pool._asdict().items() if value is not None}
         training.write_atomically(path, lambda file: np.savez(file, **arrays))
     return pool
 
 
-def _training_pool(config: TrainConfig, cache_dir: Path, progress: bool) -> Batch:
-    static = round(config.static_fraction * config.pool_size)
-    parts = [build_pool(dataclasses.replace(config.data, camera_motion=motion), count, first, cache_dir, progress)
-             for motion, count, first in (("static", static, 0), ("dynamic", config.pool_size - static, static))
-             if count]
+def _stack(samples: list[Batch]) -> Batch:
+    return jax.tree.map(lambda *leaves: np.stack(leaves).astype(np.float32), *samples)
+
+
+def _concatenate(parts: list[Batch]) -> Batch:
     return jax.tree.map(lambda *leaves: np.concatenate(leaves), *parts)
+
+
+def _sample_range(config: DataConfig, first_seed: int, end_seed: int) -> Batch:
+    return _stack([make_sample(seed, config)._replace(cameras=None) for seed in range(first_seed, end_seed)])
+
+
+def _training_pool(config: TrainConfig, cache_dir: Path, progress: bool, workers: int) -> Batch:
+    static = round(config.static_fraction * config.pool_size)
+    return _concatenate([
+        build_pool(dataclasses.replace(config.data, camera_motion=motion), count, first, cache_dir, progress, workers)
+        for motion, count, first in (("static", static, 0), ("dynamic", config.pool_size - static, static))
+        if count])
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2, 3))
@@ -232,16 +250,19 @@ def train(
     resume: bool,
     log: Callable[[dict], None] = lambda record: None,
     progress: bool = True,
+    data_workers: int = 1,
 ) -> Flex:
     """Train per ``config`` in ``workdir`` and return the generator (see the module docstring for the files).
 
     ``resume=True`` continues from the latest checkpoint (refusing a different config); ``resume=False``
-    refuses a ``workdir`` that already has checkpoints. ``log`` receives every logged record."""
+    refuses a ``workdir`` that already has checkpoints. ``log`` receives every logged record; ``data_workers``
+    processes build the sample pools (:func:`build_pool`)."""
     replicated, batch_sharding = training.data_parallel_shardings(config.batch_size)
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
-    pool = _training_pool(config, cache_dir, progress)
-    validation = build_pool(config.validation_data, config.validation_size, 1_000_000, cache_dir, progress)
+    pool = _training_pool(config, cache_dir, progress, data_workers)
+    validation = build_pool(config.validation_data, config.validation_size, 1_000_000, cache_dir, progress,
+                            data_workers)
 
     model_config = config.model_config
     rngs = nnx.Rngs(config.seed)

@@ -22,8 +22,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
@@ -234,14 +232,8 @@ def build_dataset(config: DataConfig, cache_dir: str | Path | None = None, *, wo
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return WindowDataset(**{name: stored[name] for name in WindowDataset._fields})
-    jobs = [(config, seed, index) for index, seed in enumerate(config.seeds)]
-    if workers == 1 or len(jobs) == 1:
-        parts = [_seeded_scene_windows(*job) for job in jobs]
-    else:
-        context = multiprocessing.get_context("spawn")  # a forked JAX runtime is not safe
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=context, initializer=_cpu_worker,
-                                 initargs=(bool(jax.config.jax_enable_x64),)) as pool:
-            parts = list(pool.map(_seeded_scene_windows, *zip(*jobs)))
+    parts = training.process_map(_seeded_scene_windows,
+                                 [(config, seed, index) for index, seed in enumerate(config.seeds)], workers)
     dataset = _concatenate(parts)
     if path is not None:
         training.write_atomically(path, lambda file: np.savez_compressed(file, **dataset._asdict()))
@@ -254,12 +246,6 @@ def _seeded_scene_windows(config: DataConfig, seed: int, index: int) -> WindowDa
     scene = mocap.synthesise_scene(key, mocap.shelf_cameras(), num_people=config.num_people,
                                    num_frames=config.num_frames, clips=clips)
     return scene_windows(scene, config, key, index)
-
-
-def _cpu_worker(enable_x64: bool) -> None:
-    """Scene-building processes stay off the accelerator the parent trains on, with the parent's precision."""
-    jax.config.update("jax_platforms", "cpu")
-    jax.config.update("jax_enable_x64", enable_x64)
 
 
 def window_batch(

@@ -237,3 +237,17 @@ def test_command_refuses_a_missing_data_folder(tmp_path, capsys):
     assert exit_.value.code == 2
     assert f"data folder {tmp_path} holds no cmu_expmap" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_command_line_training_options(data_root, tmp_path):
+    from experiments import dynamics_forecast
+    config = dynamics_forecast.Config(out=tmp_path, data_root=data_root, train=True, train_steps=4000,
+                                      train_batch=64, train_names=("PHD+T",))
+    train = config.train_config(("a.txt",), ("b.txt",))
+    assert (train.stage.steps, train.stage.batch_size) == (4000, 64)
+    assert train.stage.learning_rate == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.learning_rate
+    for options, message in (({"train_steps": 0}, "--train-steps must be >= 1"),
+                             ({"train_batch": 0}, "--train-batch must be >= 1"),
+                             ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
+        with pytest.raises(ValueError, match=message):
+            dynamics_forecast.Config(out=tmp_path, data_root=data_root, **options)

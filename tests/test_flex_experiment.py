@@ -90,7 +90,7 @@ def test_help_explains_every_option(capsys):
     text = capsys.readouterr().out
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames",
                    "--train-names", "--train-expmap", "--test-expmap", "--rigs", "--perturbation-draws",
-                   "--noise-correlation"):
+                   "--noise-correlation", "--train-batch", "--train-pool", "--data-workers"):
         assert option in text
     assert ExperimentConfig().sequences == 16
 
@@ -117,6 +117,9 @@ def test_a_bad_option_is_refused_by_name(option, value, message):
 @pytest.mark.parametrize(("options", "message"), [
     ({"train_names": ("flex_9views",)}, "--train-names must name models of"),
     ({"train_expmap": True}, "--train-expmap needs --train"),
+    ({"train_batch": 0}, "--train-batch must be >= 1"),
+    ({"train_pool": 0}, "--train-pool must be >= 1"),
+    ({"data_workers": 0}, "--data-workers must be >= 1"),
     ({"test_expmap": True, "experiment": ExperimentConfig(clips=("02_01_walk",))},
      "--test-expmap and --clips exclude each other"),
 ])

@@ -90,6 +90,13 @@ def test_pool_is_cached_and_float32(cache_dir):
     assert len(list(Path(cache_dir).glob("flex_pool_*.npz"))) >= 1
 
 
+def test_pool_built_by_workers_is_the_one_process_pool():
+    one = flex.build_pool(DATA, 3, 100, progress=False)
+    two = flex.build_pool(DATA, 3, 100, progress=False, workers=2)
+    for a, b in zip(one[:-1], two[:-1]):
+        assert_array_equal(a, b)
+
+
 @pytest.fixture(scope="module")
 def full_run(cache_dir, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("flex_full")

@@ -8,6 +8,7 @@
 - :func:`save_model` / :func:`load_model_state`: a trained NNX model as ``config.json`` + ``state.npz``, the
   small format the project ships its models in; :func:`store_model_as` rewrites one in float16 (half the size).
 - :func:`dropout`: inverted dropout driven by an explicit key (``None``: inference).
+- :func:`process_map`: data building in CPU-only worker processes (samples and scenes are independent).
 """
 
 from importlib.metadata import version as _version
@@ -23,5 +24,6 @@ from ._store import load_model_state as load_model_state
 from ._store import save_model as save_model
 from ._store import STORAGE_DTYPES as STORAGE_DTYPES
 from ._store import store_model_as as store_model_as
+from ._workers import process_map as process_map
 
 __version__ = _version("mvmocap")

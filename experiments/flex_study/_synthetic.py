@@ -115,10 +115,12 @@ class ExperimentConfig:
             raise ValueError(f"plot_frames must be in 1..frames={self.frames}, got {self.plot_frames}")
 
 
-def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = ()) -> TrainConfig:
+def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = (), *,
+                 batch_size: int = 16, pool_size: int | None = None) -> TrainConfig:
     """The run that trains model ``name`` of :data:`~flex.MODELS` or :data:`~flex.RIG_MODELS`: the ``"small"``
-    config on the training clips plus ``extra_clips`` (motion files); a rig model sees only its rig, static, with
-    the correlated 2D noise of :data:`RIG_NOISE_CORRELATION`, from a pool of 4096 windows."""
+    config on the training clips plus ``extra_clips`` (motion files), ``batch_size`` windows per step from a pool
+    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig model sees only its
+    rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION`."""
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
     if name in RIG_MODELS:
@@ -127,30 +129,32 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
                           detector=detector)
         return TrainConfig(
             model=dataclasses.replace(CONFIGS["small"], views=_TEST_VIEWS), steps=steps, seed=seed,
-            cache_dir=str(cache_dir), data=data, pool_size=4096, static_fraction=1.0,
-            validation_data=dataclasses.replace(data, clips=VALIDATION_CLIPS))
+            cache_dir=str(cache_dir), data=data, pool_size=pool_size or 4096, static_fraction=1.0,
+            batch_size=batch_size, validation_data=dataclasses.replace(data, clips=VALIDATION_CLIPS))
     views, fusion = MODELS[name]
     return TrainConfig(
         model=dataclasses.replace(CONFIGS["small"], views=views, fusion=fusion), steps=steps, seed=seed,
-        cache_dir=str(cache_dir),
+        cache_dir=str(cache_dir), batch_size=batch_size, pool_size=pool_size or base.pool_size,
         data=dataclasses.replace(base.data, views=views, clips=clips),
         validation_data=dataclasses.replace(base.validation_data, views=views))
 
 
 def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple[str, ...] = tuple(MODELS),
-                 extra_clips: tuple[str, ...] = (), log: Callable[[dict], None] = lambda record: None,
+                 extra_clips: tuple[str, ...] = (), batch_size: int = 16, pool_size: int | None = None,
+                 data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
                  progress: bool = True) -> dict[str, Flex]:
     """Train the models ``names`` (of :data:`~flex.MODELS` and :data:`~flex.RIG_MODELS`) in ``workdir/<name>`` for
     ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints; a finished model folder
     ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships. The sample pools are cached once for all models
-    in ``workdir/data_cache``."""
+    in ``workdir/data_cache``, built by ``data_workers`` processes."""
     models = {}
     for name in names:
         run = Path(workdir) / name
-        config = train_config(name, steps, seed, Path(workdir) / "data_cache", extra_clips)
+        config = train_config(name, steps, seed, Path(workdir) / "data_cache", extra_clips, batch_size=batch_size,
+                              pool_size=pool_size)
         done = (run / "model" / "state.npz").is_file()
         models[name] = load_flex(run / "model") if done else train(
-            config, run, resume=(run / "checkpoints").is_dir(), progress=progress,
+            config, run, resume=(run / "checkpoints").is_dir(), progress=progress, data_workers=data_workers,
             log=lambda record, name=name: log({"model": name, **record}))
     return models
 
