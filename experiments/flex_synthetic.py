@@ -21,7 +21,7 @@ import tyro
 
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
-from flex import MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, load_models
+from flex import DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, load_models
 
 QUICK = dict(sequences=4, rigs=("h36m_ring",), perturbation_draws=2)
 """What --quick changes (where the option is not given another value)."""
@@ -39,8 +39,9 @@ class Config:
     train: bool = False
     """Train the models of --train-names into OUT/models (resumably) and use them instead of --model-dir's."""
     train_names: tuple[str, ...] = tuple(MODELS)
-    """With --train: the models to train, names of flex.MODELS (default: all of them) or flex.RIG_MODELS
-    (flex_4views_h36m_ring, flex_4views_shelf); the others come from --model-dir."""
+    """With --train: the models to train, names of flex.MODELS (default: all of them), flex.RIG_MODELS
+    (flex_4views_h36m_ring, flex_4views_shelf) or flex.DETECTION_MODELS (flex_4views_shelf_detected, for
+    experiments.flex_shelf); the others come from --model-dir."""
     train_steps: int | None = None
     """Training steps per model with --train (default 1500, --quick 100)."""
     train_batch: int = 16
@@ -70,9 +71,10 @@ class Config:
         for name in ("train_batch", "data_workers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        unknown = sorted(set(self.train_names) - set(MODELS) - set(RIG_MODELS))
+        known = [*MODELS, *RIG_MODELS, *DETECTION_MODELS]
+        unknown = sorted(set(self.train_names) - set(known))
         if unknown or not self.train_names:
-            raise ValueError(f"--train-names must name models of {sorted(MODELS) + sorted(RIG_MODELS)}, got {unknown}")
+            raise ValueError(f"--train-names must name models of {known}, got {unknown}")
         if self.train_expmap and not self.train:
             raise ValueError("--train-expmap needs --train")
         if self.test_expmap and self.experiment.clips != ExperimentConfig().clips:

@@ -16,6 +16,9 @@ from ._baselines import motion_metrics as motion_metrics
 from ._baselines import root_position_error as root_position_error
 from ._baselines import triangulation_baseline as triangulation_baseline
 from ._baselines import MotionMetrics as MotionMetrics
+from ._clips import TEST_CLIPS as TEST_CLIPS
+from ._clips import TRAIN_CLIPS as TRAIN_CLIPS
+from ._clips import VALIDATION_CLIPS as VALIDATION_CLIPS
 from ._data import fixed_rig as fixed_rig
 from ._data import local_rotations as local_rotations
 from ._data import make_batch as make_batch
@@ -27,6 +30,9 @@ from ._data import symmetric_bone_lengths as symmetric_bone_lengths
 from ._data import Batch as Batch
 from ._data import DataConfig as DataConfig
 from ._data import FIXED_RIGS as FIXED_RIGS
+from ._detections import input_from_detections as input_from_detections
+from ._detections import input_joint_weights as input_joint_weights
+from ._detections import INPUT_SUPPORT as INPUT_SUPPORT
 from ._export import to_bvh as to_bvh
 from ._losses import adversarial_loss as adversarial_loss
 from ._losses import contact_loss as contact_loss
@@ -49,6 +55,7 @@ from ._model import RotationDiscriminator as RotationDiscriminator
 from ._normalise import normalise_2d as normalise_2d
 from ._normalise import normalise_view as normalise_view
 from ._normalise import NormalisedInput as NormalisedInput
+from ._shipped import DETECTION_MODELS as DETECTION_MODELS
 from ._shipped import load_models as load_models
 from ._shipped import MAIN_MODEL as MAIN_MODEL
 from ._shipped import MODELS as MODELS
@@ -58,10 +65,7 @@ from ._train import build_pool as build_pool
 from ._train import load_flex as load_flex
 from ._train import train as train
 from ._train import train_step as train_step
-from ._train import TEST_CLIPS as TEST_CLIPS
-from ._train import TRAIN_CLIPS as TRAIN_CLIPS
 from ._train import TrainConfig as TrainConfig
 from ._train import TrainState as TrainState
-from ._train import VALIDATION_CLIPS as VALIDATION_CLIPS
 
 __version__ = _version("mvmocap")

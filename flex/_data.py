@@ -47,6 +47,7 @@ import geometry
 import mocap
 from geometry import BODY25, FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_REST_DIRECTIONS, FLEX20_ROTATING, STRUCTRI17, Camera
 
+from ._detections import input_from_detections
 from ._normalise import normalise_2d
 
 __all__ = [
@@ -142,6 +143,10 @@ class DataConfig:
     vertical_speed: float = 0.2
     """Dynamic: maximum vertical speed (m/s); heights stay in [0.3, 3] m."""
     detector: mocap.DetectorConfig = mocap.DetectorConfig()
+    input_joints: Literal["structri17", "detected"] = "structri17"
+    """The model's 2D input: ``"structri17"``, the STRUCTRI17 joints' projections with the detector's error of their
+    nearest BODY25 joints; ``"detected"``, made from the detected BODY25 keypoints by
+    :func:`~flex.input_from_detections`, as it is made from a real detector's output."""
     contact_speed: float = 0.3
     """A foot (ankle) is in contact when slower than this (m/s) ..."""
     contact_height: float = 0.06
@@ -152,6 +157,8 @@ class DataConfig:
             raise ValueError(f"need views >= 1 and frames >= 2, got {self.views}, {self.frames}")
         if self.camera_motion not in ("static", "dynamic"):
             raise ValueError(f"camera_motion must be 'static' or 'dynamic', got {self.camera_motion!r}")
+        if self.input_joints not in ("structri17", "detected"):
+            raise ValueError(f"input_joints must be 'structri17' or 'detected', got {self.input_joints!r}")
         for name in ("distance", "height", "focal"):
             low, high = getattr(self, name)
             if not 0 < low <= high:
@@ -363,8 +370,13 @@ def _detect(key: Array, config: DataConfig, cameras: Camera, body25: np.ndarray,
         projected = np.asarray(geometry.project(rig.select(0), in_camera(h36m)))
         mean_error = np.einsum("tkb,tbc->tkc", weight, error) / np.maximum(count, 1)[..., None]
         confidence = np.einsum("kb,tb->tk", _PROXIES / _PROXIES.sum(-1, keepdims=True), found[..., 2])
-        seen = count > 0
-        points.append(np.where(seen[..., None], projected + mean_error, 0.0))
+        if config.input_joints == "detected":
+            detected, confidence = input_from_detections(found[..., :2], found[..., 2])
+            seen = confidence > 0
+            points.append(np.where(seen[..., None], detected, 0.0))
+        else:
+            seen = count > 0
+            points.append(np.where(seen[..., None], projected + mean_error, 0.0))
         confidences.append(np.where(seen, confidence, 0.0))
         exact.append(projected)
     return np.stack(points), np.stack(confidences), np.stack(exact)

@@ -8,7 +8,7 @@ from typing import Literal
 from ._model import Flex
 from ._train import load_flex
 
-__all__ = ["MAIN_MODEL", "MODELS", "RIG_MODELS", "SHIPPED_MODELS", "load_models"]
+__all__ = ["DETECTION_MODELS", "MAIN_MODEL", "MODELS", "RIG_MODELS", "SHIPPED_MODELS", "load_models"]
 
 SHIPPED_MODELS = Path(__file__).parent / "assets"
 MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
@@ -22,14 +22,17 @@ MODELS: dict[str, tuple[int, Literal["early", "late"]]] = {
 RIG_MODELS: dict[str, str] = {"flex_4views_h36m_ring": "h36m_ring", "flex_4views_shelf": "shelf"}
 """FLEX (4 views, early fusion, the ``"small"`` config) trained on one fixed rig (:attr:`~flex.DataConfig.rig`), the
 paper's protocol: name -> rig."""
+DETECTION_MODELS: dict[str, str] = {"flex_4views_shelf_detected": "shelf"}
+"""The same on one fixed rig with the 2D input made from detected BODY25 keypoints
+(:attr:`~flex.DataConfig.input_joints` ``"detected"``), for a real detector's output: name -> rig."""
 MAIN_MODEL = "flex_4views"
 """The model of :data:`MODELS` that the experiment cannot run without (FLEX, 4 views, early fusion)."""
 
 
 def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
-    """The :data:`MODELS` and :data:`RIG_MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent
+    """The :data:`MODELS`, :data:`RIG_MODELS` and :data:`DETECTION_MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent
     ablation and rig models are left out, an absent main model is an error."""
     if not (Path(model_dir) / MAIN_MODEL / "state.npz").is_file():
         raise FileNotFoundError(f"{model_dir} has no saved main model {MAIN_MODEL}/ (config.json, state.npz)")
-    return {name: load_flex(Path(model_dir) / name) for name in (*MODELS, *RIG_MODELS)
+    return {name: load_flex(Path(model_dir) / name) for name in (*MODELS, *RIG_MODELS, *DETECTION_MODELS)
             if (Path(model_dir) / name / "state.npz").is_file()}

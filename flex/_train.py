@@ -40,20 +40,13 @@ import mocap
 import training
 from geometry import FLEX20, STRUCTRI17
 
+from ._clips import TEST_CLIPS, TRAIN_CLIPS, VALIDATION_CLIPS
 from ._data import Batch, DataConfig, make_sample
 from ._losses import LossWeights, discriminator_loss, generator_loss
 from ._model import CONFIGS, Discriminator, Flex, FlexConfig
 
-__all__ = [
-    "TEST_CLIPS", "TRAIN_CLIPS", "TrainConfig", "TrainState", "VALIDATION_CLIPS", "build_pool", "load_flex", "train",
-    "train_step",
-]
+__all__ = ["TrainConfig", "TrainState", "build_pool", "load_flex", "train", "train_step"]
 
-TEST_CLIPS: tuple[str, ...] = ("02_05_punch", "60_05_61_05_salsa")
-"""Held out from training: FLEX's test clips (one single-person, one two-person clip)."""
-VALIDATION_CLIPS: tuple[str, ...] = ("03_01_uneven",)
-"""Held out from training and from the test: the training log's validation MPJPE."""
-TRAIN_CLIPS: tuple[str, ...] = tuple(c for c in mocap.list_clips() if c not in TEST_CLIPS + VALIDATION_CLIPS)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,8 +21,8 @@ from experiments import _cli
 
 REPO = Path(__file__).resolve().parents[1]
 ENTRY_POINTS = ("bench_dynamics", "bench_geometry", "bench_jcsat", "bench_joint_cloud", "bench_otap", "bench_structri",
-                "convert_cmu", "dynamics", "flex_synthetic", "preview_scene", "shelf_eval", "shelf_jcsat",
-                "shelf_validate", "structri_shelf", "structri_virtual", "jcsat_ablations")
+                "convert_cmu", "dynamics", "dynamics_forecast", "flex_shelf", "flex_synthetic", "preview_scene",
+                "shelf_eval", "shelf_jcsat", "shelf_validate", "structri_shelf", "structri_virtual", "jcsat_ablations")
 
 
 def _options(config_type: type, prefix: str = "") -> list[str]:

@@ -90,9 +90,14 @@ def test_pool_is_cached_and_float32(cache_dir):
     assert len(list(Path(cache_dir).glob("flex_pool_*.npz"))) >= 1
 
 
-def test_pool_built_by_workers_is_the_one_process_pool():
+def test_pool_built_in_chunks_for_workers_is_the_one_process_pool(monkeypatch):
+    """The chunks the worker processes build, concatenated, are the one-process pool (the chunks are built here:
+    training.process_map's processes are tested with JCSAT's scene building)."""
+    jobs = []
+    monkeypatch.setattr(training, "process_map", lambda fn, args, workers: jobs.extend(args) or [fn(*a) for a in args])
     one = flex.build_pool(DATA, 3, 100, progress=False)
     two = flex.build_pool(DATA, 3, 100, progress=False, workers=2)
+    assert [(first, end) for _, first, end in jobs] == [(100, 101), (101, 102), (102, 103)]
     for a, b in zip(one[:-1], two[:-1]):
         assert_array_equal(a, b)
 

@@ -222,8 +222,25 @@ def test_flex_synthetic_quick_on_the_shipped_models(tmp_path):
         if "draws_mpjpe_mm" in row:
             assert len(row["draws_mpjpe_mm"]) == 2 and row["mpjpe_mm"] == pytest.approx(np.mean(row["draws_mpjpe_mm"]))
     assert rigs[0.0, "DLT", "exact"]["mpjpe_mm"] != rigs[0.9, "DLT", "exact"]["mpjpe_mm"]
-    for name in ("rigs.png", "results.md"):
+    # Every method, calibration, input and ablation is scored, finite (the structure the tables are made of).
+    main = {(r["camera_motion"], r["input_2d"], r["method"], r["calibration"]) for r in results["main"]}
+    for motion in ("static", "dynamic"):
+        for source in ("detected", "gt"):
+            assert (motion, source, "FLEX (4 views)", "none") in main
+            for method in ("DLT", "Structural Triangulation"):
+                for calibration in ("exact", "perturbed 3 %", "perturbed 4 %"):
+                    assert (motion, source, method, calibration) in main
+            assert ((motion, source, "DLT", "stale (first frame)") in main) == (motion == "dynamic")
+    variants = [(r["camera_motion"], r["variant"]) for r in results["ablations"]]
+    assert len(variants) == 2 * 7 and ("dynamic", "averaged monocular") in variants
+    for row in results["main"] + results["ablations"]:
+        assert all(np.isfinite(row[k]) and row[k] >= 0 for k in ("mpjpe_mm", "acceleration_error_mm", "mbls_mm"))
+    exact_gt = [r for r in results["main"] if r["input_2d"] == "gt" and r["calibration"] == "exact"]
+    assert all(r["mpjpe_mm"] < 5 for r in exact_gt)  # exact 2D and cameras: triangulation is exact
+    for name in ("rigs.png", "results.md", "skeletons.png", "mpjpe.png"):
         assert (tmp_path / name).stat().st_size > 0
+    assert len((tmp_path / "log.jsonl").read_text().splitlines()) == sum(
+        len(results[table]) for table in ("main", "ablations", "rigs"))
 
 
 # `python -m experiments.dynamics --quick --out OUT` on the shipped models (README "Dynamics", on test windows every

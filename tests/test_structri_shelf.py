@@ -6,11 +6,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import flex
 import geometry
 from experiments import _cli, structri_shelf
-from experiments.structri_study import SHELF_METHODS, ShelfConfig, run_shelf
+from experiments.flex_study import FlexShelfConfig, run_flex_shelf
+from experiments.structri_study import SHELF_METHODS, ShelfConfig, ShelfScene, run_shelf
 from experiments.structri_study._shelf import (LIMBS, length_spread, limb_lengths, match_tracks, score_rows, solvable,
                                                symmetry_error, track_observations, view_subsets)
+
+FLEX_ROWS = 94
+FLEX_MPJPE = {"flex_4views": 183.8, "DLT exact": 59.2, "ST exact": 58.9, "DLT 3 %": 66.5, "ST 3 %": 66.0}
+"""experiments.flex_shelf's table on the --quick frames (2 perturbation draws): its rows and MPJPE (mm)."""
 
 LIMB_LENGTHS = np.array([0.30, 0.25, 0.45, 0.45, 0.32, 0.28, 0.44, 0.46])
 """Right upper arm, forearm, thigh, shin, then the left ones (:data:`LIMBS` order), metres."""
@@ -114,12 +120,19 @@ def test_a_missing_data_folder_is_one_line_naming_it(capsys):
     assert "data folder /nonexistent is not a folder" in error
 
 
-def test_quick_table_on_the_real_detections(data_root, tmp_path):
+@pytest.fixture(scope="module")
+def quick_scene(data_root) -> ShelfScene:
+    """The association of the --quick frames, run once for this table and FLEX's (tests/test_flex_shelf.py tests
+    the rest of that table)."""
+    return ShelfScene(ShelfConfig(str(data_root), **structri_shelf.QUICK))
+
+
+def test_quick_table_on_the_real_detections(data_root, quick_scene, tmp_path):
     """The --quick setting in-process: the files, their structure and a few values measured on 2026-11-25 (2-core
     VM). The tolerances allow for the association moving a little between installs (docs/jcsat.md: up to 0.15 PCP
     points on the full run); the coverage and counts are exact."""
     config = ShelfConfig(str(data_root), **structri_shelf.QUICK)
-    results = run_shelf(config, tmp_path)
+    results = run_shelf(config, tmp_path, quick_scene)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["config.json", "log.jsonl", "results.json", "results.md"]
     assert json.loads((tmp_path / "results.json").read_text())["summary"] == results["summary"]
     log = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
@@ -142,3 +155,18 @@ def test_quick_table_on_the_real_detections(data_root, tmp_path):
         assert got["symmetry_mm"]["mean"] == pytest.approx(symmetry, abs=0.5), name
         assert got["fallback"]["mean"] == 0.0, name
     assert "| ST | n/a | 50.3 / 97.8 / 22.9 / 0.0 |" in (tmp_path / "results.md").read_text()
+
+
+def test_flex_table_on_the_same_detections(data_root, quick_scene, tmp_path):
+    """experiments.flex_shelf's table on the --quick frames with 2 perturbation draws and the shipped random-rig
+    model; values measured on 2026-11-26 (2-core VM)."""
+    config = FlexShelfConfig(str(data_root), frames=len(quick_scene.frame_indices), perturbation_draws=2)
+    results = run_flex_shelf(config, {"flex_4views": flex.load_models()["flex_4views"]}, tmp_path, scene=quick_scene)
+    assert json.loads((tmp_path / "results.json").read_text())["methods"] == results["methods"]
+    assert list(results["methods"]) == ["flex_4views", "DLT exact", "ST exact", "DLT 3 %", "ST 3 %"]
+    assert results["rows"] == FLEX_ROWS
+    measured = {name: round(method["mpjpe_mm"], 1) for name, method in results["methods"].items()}
+    assert measured == pytest.approx(FLEX_MPJPE, abs=1.0)
+    assert results["methods"]["ST 3 %"]["mpjpe_mm_sd"] > 0 and "| flex_4views |" in (tmp_path / "results.md").read_text()
+    with pytest.raises(ValueError, match="model flex_1view takes 1 views, the table uses 4"):
+        run_flex_shelf(config, {"flex_1view": flex.load_models()["flex_1view"]}, tmp_path, scene=quick_scene)

@@ -45,7 +45,7 @@ from jaxtyping import ArrayLike
 from matplotlib.figure import Figure
 
 import mocap
-from flex import (CONFIGS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS, Batch, DataConfig,
+from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS, Batch, DataConfig,
                   Flex, TrainConfig, averaged_monocular, camera_root, load_flex, make_batch, motion_metrics,
                   normalise_2d, root_position_error, train, triangulation_baseline)
 from geometry import FLEX20, STRUCTRI17, remap_joints
@@ -117,16 +117,18 @@ class ExperimentConfig:
 
 def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = (), *,
                  batch_size: int = 16, pool_size: int | None = None) -> TrainConfig:
-    """The run that trains model ``name`` of :data:`~flex.MODELS` or :data:`~flex.RIG_MODELS`: the ``"small"``
+    """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS` or
+    :data:`~flex.DETECTION_MODELS`: the ``"small"``
     config on the training clips plus ``extra_clips`` (motion files), ``batch_size`` windows per step from a pool
-    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig model sees only its
-    rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION`."""
+    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig or detection model sees
+    only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION`."""
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
-    if name in RIG_MODELS:
+    if name in RIG_MODELS or name in DETECTION_MODELS:
         detector = mocap.DetectorConfig(noise_correlation=RIG_NOISE_CORRELATION)
-        data = DataConfig(views=_TEST_VIEWS, frames=base.data.frames, clips=clips, rig=RIG_MODELS[name],
-                          detector=detector)
+        data = DataConfig(views=_TEST_VIEWS, frames=base.data.frames, clips=clips, detector=detector,
+                          **({"rig": RIG_MODELS[name]} if name in RIG_MODELS else
+                             {"rig": DETECTION_MODELS[name], "input_joints": "detected"}))
         return TrainConfig(
             model=dataclasses.replace(CONFIGS["small"], views=_TEST_VIEWS), steps=steps, seed=seed,
             cache_dir=str(cache_dir), data=data, pool_size=pool_size or 4096, static_fraction=1.0,

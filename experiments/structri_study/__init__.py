@@ -13,3 +13,6 @@ from ._virtual import VirtualConfig as VirtualConfig
 from ._shelf import run_shelf as run_shelf
 from ._shelf import ShelfConfig as ShelfConfig
 from ._shelf import SHELF_METHODS as SHELF_METHODS
+from ._shelf import score_rows as score_rows
+from ._shelf import ShelfScene as ShelfScene
+from ._shelf import solvable as solvable

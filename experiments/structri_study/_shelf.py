@@ -61,7 +61,7 @@ from association import BaselineResult, run_geometric_baseline, track_bone_lengt
 from structri import (Status, estimate_bone_lengths, lagrangian_triangulation, lem_triangulation, ls_triangulation,
                       structural_triangulation)
 
-__all__ = ["SHELF_METHODS", "ShelfConfig", "run_shelf"]
+__all__ = ["SHELF_METHODS", "ShelfConfig", "ShelfScene", "run_shelf", "score_rows", "solvable"]
 
 SHELF_METHODS: tuple[str, ...] = ("LS", "LEM", "Lagrangian", "ST", "ST*")
 """Triangulation methods, in table order: unconstrained least squares (the paper's DLT(LS)), the official DLT
@@ -215,8 +215,12 @@ def score_rows(
     return {"mean": mean, "actors": per_actor}
 
 
-class _Scene:
-    """The association's output, reduced to what the table needs (NumPy, metres and pixels)."""
+class ShelfScene:
+    """The association's output on the first ``config.frames`` test frames, reduced to what a table on the real
+    detections needs (NumPy, metres and pixels; this table's and ``experiments.flex_shelf``'s): per track (``tracks``,
+    rows of ``pixels``) and frame, the SKEL19 2D per view and their weights (``pixels``, ``weight``); the matched
+    actor-frames (``actor``, ``frame``, ``track``), the ground truth (``truth``, ``annotated``) and each actor's
+    reference limb lengths; each track's bone lengths from its 5-view poses (``lengths``, ``estimated_lengths``)."""
 
     def __init__(self, config: ShelfConfig):
         root = Path(config.data_root)
@@ -274,7 +278,7 @@ class _Scene:
         return np.swapaxes(self.weight[track, frame], -1, -2)
 
 
-def _solve_subset(scene: _Scene, config: ShelfConfig, views: tuple[int, ...]) -> dict:
+def _solve_subset(scene: ShelfScene, config: ShelfConfig, views: tuple[int, ...]) -> dict:
     """Every method on the matched rows with only ``views``' weights, scored on the rows solvable with them."""
     keep = np.isin(np.arange(SHELF_VIEWS), views)
     weight = scene.weight[scene.track, scene.frame] * keep
@@ -335,13 +339,14 @@ def _summary(cells: list[dict]) -> dict:
     return out
 
 
-def run_shelf(config: ShelfConfig, out: str | Path) -> dict:
+def run_shelf(config: ShelfConfig, out: str | Path, scene: ShelfScene | None = None) -> dict:
     """Run the table and write ``config.json``, ``log.jsonl`` (one line for the association, then one per view
     subset), ``results.json`` (every subset and the summary per camera count) and ``results.md`` to ``out``.
+    ``scene``: the association's output for ``config`` when it was already run (None: run it here).
 
     The solvers run in float64 (``jax.enable_x64`` for this call only; the global setting is left as it was)."""
     with jax.enable_x64(True):
-        return _run_shelf(config, Path(out))
+        return _run_shelf(config, Path(out), scene or ShelfScene(config))
 
 
 def _log(out: Path, entry: dict) -> None:
@@ -349,11 +354,10 @@ def _log(out: Path, entry: dict) -> None:
         log.write(json.dumps(entry) + "\n")
 
 
-def _run_shelf(config: ShelfConfig, out: Path) -> dict:
+def _run_shelf(config: ShelfConfig, out: Path, scene: ShelfScene) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(dataclasses.asdict(config), indent=2) + "\n")
     start = time.perf_counter()
-    scene = _Scene(config)
     association = {"stage": "association", "seconds": round(scene.association_seconds, 3),
                    "tracks": len(scene.tracks), "matched_actor_frames": len(scene.actor),
                    "annotated_actor_frames": scene.annotated_count,
