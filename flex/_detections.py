@@ -65,13 +65,18 @@ def input_joint_weights(source: Skeleton = geometry.BODY25) -> Float[np.ndarray,
 def input_from_detections(
     points: Float[np.ndarray, "*b J 2"], confidences: Float[np.ndarray, "*b J"], source: Skeleton = geometry.BODY25
 ) -> tuple[Float[np.ndarray, "*b 17 2"], Float[np.ndarray, "*b 17"]]:
-    """Detector keypoints of ``source`` (pixels, confidences in [0, 1], 0 = missed) -> FLEX's STRUCTRI17 input."""
+    """Detector keypoints of ``source`` (pixels, scores >= 0 with 0 = missed) -> FLEX's STRUCTRI17 input."""
     points, confidences = np.asarray(points, np.float64), np.asarray(confidences, np.float64)
     if points.shape[-2:] != (source.num_joints, 2) or confidences.shape != points.shape[:-1]:
         raise ValueError(f"points must be (..., {source.num_joints}, 2) {source.name} pixels and confidences "
                          f"(..., {source.num_joints}), got {points.shape} and {confidences.shape}")
+    if not np.all(confidences >= 0):  # NaN fails too; OpenPose's scores reach slightly above 1, which is kept
+        raise ValueError("confidences must be finite detector scores >= 0 (0 = missed)")
+    if not np.isfinite(points[confidences > 0]).all():
+        raise ValueError("points must be finite where the confidence is positive")
     weights = input_joint_weights(source)
     support = weights != 0
-    combined = np.einsum("kj,...jc->...kc", weights, points)
+    seen = np.where(confidences[..., None] > 0, points, 0.0)  # a missed joint's pixels (NaN, say) are not read
+    combined = np.einsum("kj,...jc->...kc", weights, seen)
     confidence = np.min(np.where(support, confidences[..., None, :], np.inf), axis=-1)
     return combined, confidence

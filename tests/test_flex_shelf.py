@@ -37,6 +37,13 @@ def test_a_missed_support_joint_misses_the_input_joint():
     assert confidence[2, spine] == 0.4 and confidence[2, knee] == 0.9
     with pytest.raises(ValueError, match=r"points must be \(\.\.\., 25, 2\) BODY25 pixels"):
         flex.input_from_detections(points[:, :19], confidences[:, :19])
+    points[0, 3] = np.nan
+    with pytest.raises(ValueError, match="points must be finite where the confidence is positive"):
+        flex.input_from_detections(points, confidences)
+    confidences[0, 3] = 0.0  # a missed joint's pixels are not read
+    assert np.isfinite(flex.input_from_detections(points, confidences)[0][0, geometry.STRUCTRI17.index("r_knee")]).all()
+    with pytest.raises(ValueError, match="confidences must be finite detector scores >= 0"):
+        flex.input_from_detections(points, np.full((3, 25), -0.5))
 
 
 def test_detected_input_differs_from_the_body_models_joints_only_off_the_limbs():
