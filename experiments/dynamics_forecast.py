@@ -21,8 +21,8 @@ from typing import Literal
 
 import geometry
 import mocap
-from dynamics import (FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split, load_forecasters,
-                      train_forecasters)
+from dynamics import (FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split,
+                      load_forecasters, train_forecasters)
 from experiments import _cli
 from experiments.dynamics_study import run_forecast_study
 

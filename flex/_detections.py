@@ -52,7 +52,8 @@ def input_joint_weights(source: Skeleton = geometry.BODY25) -> Float[np.ndarray,
         first, *rest = INPUT_SUPPORT[name]
         base = body25[:, geometry.BODY25.index(first)]
         if rest:  # target - first = sum_k w_k (joint_k - first): the weights then sum to one with 1 - sum w_k
-            design = np.stack([body25[:, geometry.BODY25.index(n)] - base for n in rest], axis=-1).reshape(-1, len(rest))
+            design = np.stack([body25[:, geometry.BODY25.index(n)] - base for n in rest], axis=-1)
+            design = design.reshape(-1, len(rest))
             w, *_ = np.linalg.lstsq(design, (structri17[:, j] - base).reshape(-1), rcond=None)
         else:
             w = np.zeros(0)

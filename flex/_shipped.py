@@ -30,8 +30,9 @@ MAIN_MODEL = "flex_4views"
 
 
 def load_models(model_dir: str | Path = SHIPPED_MODELS) -> dict[str, Flex]:
-    """The :data:`MODELS`, :data:`RIG_MODELS` and :data:`DETECTION_MODELS` saved in ``model_dir/<name>`` (:func:`~flex.load_flex`); absent
-    ablation and rig models are left out, an absent main model is an error."""
+    """The :data:`MODELS`, :data:`RIG_MODELS` and :data:`DETECTION_MODELS` saved in ``model_dir/<name>``
+    (:func:`~flex.load_flex`); absent ablation, rig and detection models are left out, an absent main model is an
+    error."""
     if not (Path(model_dir) / MAIN_MODEL / "state.npz").is_file():
         raise FileNotFoundError(f"{model_dir} has no saved main model {MAIN_MODEL}/ (config.json, state.npz)")
     return {name: load_flex(Path(model_dir) / name) for name in (*MODELS, *RIG_MODELS, *DETECTION_MODELS)

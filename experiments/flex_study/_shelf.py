@@ -49,6 +49,8 @@ from experiments.structri_study import ShelfConfig, ShelfScene, score_rows, solv
 from flex import Flex, input_from_detections
 from structri import ls_triangulation, structural_triangulation
 
+from ._synthetic import mean_and_spread
+
 __all__ = ["FlexShelfConfig", "flex_poses", "run_flex_shelf"]
 
 _STRUCTRI17_IN_FLEX20 = np.array([geometry.FLEX20.index(name) for name in geometry.STRUCTRI17.joints])
@@ -188,9 +190,7 @@ def _run_flex_shelf(config: FlexShelfConfig, models: dict[str, Flex], out: Path,
             draws[method].append(scores(poses))
     label = f"{100 * config.perturbation:g} %"
     for method, values in draws.items():
-        results["methods"][f"{method} {label}"] = {
-            **{m: float(np.mean([v[m] for v in values])) for m in _METRICS},
-            **{f"{m}_sd": float(np.std([v[m] for v in values], ddof=1)) for m in _METRICS}}
+        results["methods"][f"{method} {label}"] = mean_and_spread([{m: v[m] for m in _METRICS} for v in values])
         log({"method": f"{method} {label}", **results["methods"][f"{method} {label}"]})
     results["seconds"] = round(time.perf_counter() - start, 1)
     (out / "results.json").write_text(json.dumps(results, indent=1))

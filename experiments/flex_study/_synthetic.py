@@ -45,12 +45,13 @@ from jaxtyping import ArrayLike
 from matplotlib.figure import Figure
 
 import mocap
-from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS, Batch, DataConfig,
-                  Flex, TrainConfig, averaged_monocular, camera_root, load_flex, make_batch, motion_metrics,
-                  normalise_2d, root_position_error, train, triangulation_baseline)
+from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS,
+                  Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex, make_batch,
+                  motion_metrics, normalise_2d, root_position_error, train, triangulation_baseline)
 from geometry import FLEX20, STRUCTRI17, remap_joints
 
-__all__ = ["ExperimentConfig", "RIG_NOISE_CORRELATION", "plot_camera_poses", "run_experiment", "train_config", "train_models"]
+__all__ = ["ExperimentConfig", "RIG_NOISE_CORRELATION", "mean_and_spread", "plot_camera_poses", "run_experiment",
+           "train_config", "train_models"]
 
 _TEST_VIEWS = 4
 """Cameras of every test sample."""
@@ -145,7 +146,8 @@ def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple
                  extra_clips: tuple[str, ...] = (), batch_size: int = 16, pool_size: int | None = None,
                  data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
                  progress: bool = True) -> dict[str, Flex]:
-    """Train the models ``names`` (of :data:`~flex.MODELS` and :data:`~flex.RIG_MODELS`) in ``workdir/<name>`` for
+    """Train the models ``names`` (of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS` and :data:`~flex.DETECTION_MODELS`)
+    in ``workdir/<name>`` for
     ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints; a finished model folder
     ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships. The sample pools are cached once for all models
     in ``workdir/data_cache``, built by ``data_workers`` processes."""
@@ -305,7 +307,7 @@ def _evaluate_fixed_rigs(config: ExperimentConfig, models: dict[str, Flex], add:
                                                config.n_steps, per_sequence=False)[0]
                              for draw in range(config.perturbation_draws)]
                     add({**setting, "method": label, "calibration": f"perturbed {100 * scale:g} %",
-                         **_mean_and_spread(draws)})
+                         **mean_and_spread(draws)})
 
 
 def _draw_key(seed: int, rig: int, scale: int, draw: int) -> jax.Array:
@@ -314,7 +316,7 @@ def _draw_key(seed: int, rig: int, scale: int, draw: int) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(jax.random.fold_in(jax.random.key(seed + 1), rig), scale), draw)
 
 
-def _mean_and_spread(draws: list[dict[str, float]]) -> dict:
+def mean_and_spread(draws: list[dict[str, float]]) -> dict:
     """Each metric's mean over the draws, its sample standard deviation (``<metric>_sd``) and the draws' MPJPE."""
     out = {}
     for name in draws[0]:
