@@ -54,7 +54,9 @@ from ._forecast import forecast_joints as forecast_joints
 from ._forecast import zero_motion_forecast as zero_motion_forecast
 from ._forecast import ForecasterConfig as ForecasterConfig
 from ._forecast import PoseForecaster as PoseForecaster
+from ._hmr import decoding_start as decoding_start
 from ._hmr import mean_params as mean_params
+from ._hmr import DecodeFrom as DecodeFrom
 from ._hmr import HMRHead as HMRHead
 from ._hmr import SMPLParams as SMPLParams
 from ._jat import box_features as box_features
@@ -76,6 +78,7 @@ from ._phdt import PHDT as PHDT
 from ._phdt import PHDTConfig as PHDTConfig
 from ._phdt import Rollout as Rollout
 from ._poses import canonical_window as canonical_window
+from ._poses import mirror_frames as mirror_frames
 from ._poses import pose_features as pose_features
 from ._poses import pose_frames as pose_frames
 from ._poses import FORECAST_FPS as FORECAST_FPS

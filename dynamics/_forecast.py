@@ -6,9 +6,10 @@ frame) becomes the feature ``phi_t`` that ``f_movie`` turns into ``Phi_t``. What
 from the crops, the observed frames give exactly: their SMPL rotations, shape and pelvis ``gamma_t`` enter the
 rollout as they are, and ``f_JE`` encodes their joints. The rollout is the thesis model's own
 (:meth:`~dynamics.PHDT.rollout`, :meth:`~dynamics.JAT.rollout`); ``f_HMR`` decodes the predicted ``Phi~`` into
-poses, each refining the previous frame's pose (``decode_from_previous`` of the model config, a stated deviation:
-decoded from the mean pose, the first predicted frame was tens of millimetres off the observed one after a CPU
-training, so the thesis' decoding could not beat the baselines at short horizons). The 3D setting has no person
+poses, each refining the previous frame's pose, plain or moved on by its last step (``decode_from`` of the model
+config, :func:`~dynamics.decoding_start`; a stated deviation: decoded from the mean pose, the first predicted frame
+was tens of millimetres off the observed one after a CPU training, so the thesis' decoding could not beat the
+baselines at short horizons). The 3D setting has no person
 box: JAT's four box features are zero.
 
 Baselines on the observed joints: :func:`zero_motion_forecast` (the last observed pose, repeated) and
@@ -54,6 +55,12 @@ class ForecasterConfig:
     @property
     def num_shapes(self) -> int:
         return self.model.num_shapes
+
+    def replace_model(self, **changes) -> ForecasterConfig:
+        """The same forecaster with ``changes`` to its model's config (e.g. ``decode_from``)."""
+        if self.phdt is not None:
+            return ForecasterConfig(phdt=dataclasses.replace(self.phdt, **changes))
+        return ForecasterConfig(jat=dataclasses.replace(self.jat, **changes))
 
     @classmethod
     def from_fields(cls, fields: dict) -> ForecasterConfig:

@@ -9,7 +9,7 @@ full-perspective translation (:func:`geometry.crop_camera_to_translation`). Widt
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +20,7 @@ from jaxtyping import Array, Float
 import geometry
 import training
 
-__all__ = ["HMRHead", "SMPLParams", "mean_params"]
+__all__ = ["DecodeFrom", "HMRHead", "SMPLParams", "decoding_start", "mean_params"]
 
 NUM_JOINTS = 24
 """SMPL's joints (:data:`geometry.SMPL24`); joint 0 is the root, whose rotation is global."""
@@ -50,6 +50,29 @@ def mean_params(num_shapes: int) -> SMPLParams:
         betas=jnp.zeros((num_shapes,), dtype),
         camera=jnp.asarray([0.9, 0.0, 0.0], dtype),
     )
+
+
+DecodeFrom = Literal["mean", "previous", "extrapolated"]
+"""Where an autoregressive model's f_HMR starts each predicted frame: HMR's mean pose (the thesis), the previous
+frame's pose, or the previous frame's pose moved on by its last step (:func:`decoding_start`)."""
+
+
+def decoding_start(decode_from: DecodeFrom, before: SMPLParams, previous: SMPLParams, extrapolation: float = 1.0
+                   ) -> SMPLParams | None:
+    """The parameters f_HMR refines into the frame after ``previous`` (``before`` is the frame before that): None
+    for the mean pose; ``previous``; or, ``"extrapolated"``, each joint's rotation turned on by the fraction
+    ``extrapolation`` of its last step, ``(R_t R_{t-1}^T)^e R_t`` (at 1 a constant angular velocity, the same in the
+    parent's and the joint's own frame; below 1 a silent decoder's motion slows down geometrically and comes to
+    rest), with the shape and crop camera of ``previous``."""
+    if decode_from == "mean":
+        return None
+    if decode_from == "previous":
+        return previous
+    current, last = (geometry.rotation_6d_to_matrix(p.rot6d) for p in (previous, before))
+    step = current @ jnp.swapaxes(last, -1, -2)
+    if extrapolation != 1.0:
+        step = geometry.axis_angle_to_matrix(extrapolation * geometry.matrix_to_axis_angle(step))
+    return previous._replace(rot6d=geometry.matrix_to_rotation_6d(step @ current).astype(previous.rot6d.dtype))
 
 
 def _flatten(params: SMPLParams) -> Float[Array, "*b P"]:

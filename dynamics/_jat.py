@@ -39,7 +39,7 @@ import geometry
 
 from ._attention import GPTLayer, InputEncoder, KeyValues, agent_masks
 from ._canonical import JointAwareBias, canonical_features
-from ._hmr import HMRHead, SMPLParams, mean_params
+from ._hmr import DecodeFrom, HMRHead, SMPLParams, decoding_start, mean_params
 from ._phdt import Observation, Rollout, crop_roots, last_frame, params_to_joints
 
 __all__ = ["JAT", "JATConfig", "box_features", "scene_tokens"]
@@ -65,11 +65,15 @@ class JATConfig:
     joint_aware_bias: bool = True
     """False: f_AR's attention without the bias (Table 5.5's ablation)."""
     num_shapes: int = 3
-    decode_from_previous: bool = False
-    """The rollout's f_HMR refines the previous frame's pose instead of the mean pose (as
-    :attr:`~dynamics.PHDTConfig.decode_from_previous`)."""
+    decode_from: DecodeFrom = "mean"
+    """Where the rollout's f_HMR starts each predicted frame (as :attr:`~dynamics.PHDTConfig.decode_from`)."""
+    extrapolation: float = 1.0
+    """With ``decode_from="extrapolated"``: the fraction of its last step the previous pose is moved on by
+    (:func:`~dynamics.decoding_start`)."""
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.extrapolation <= 1.0:
+            raise ValueError(f"extrapolation is a fraction of the last step, in [0, 1], got {self.extrapolation}")
         if self.receptive_field < 1:
             raise ValueError(f"receptive_field must be >= 1, got {self.receptive_field}")
         for name in ("temporal_dim", "joint_dim"):
@@ -213,6 +217,8 @@ class JAT(nnx.Module):
         observed_frames = observed.temporal.shape[-2]
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if self.config.decode_from == "extrapolated" and observed_frames < 2:
+            raise ValueError("decoding from the extrapolated pose needs at least 2 observed frames, got 1")
         length = observed_frames + horizon
         scene = observed.temporal.shape[:-2]
         present = self._present(present, scene)
@@ -230,7 +236,7 @@ class JAT(nnx.Module):
         query_people = jnp.broadcast_to(jnp.arange(scene[-1]), present.shape)
 
         def advance(carry, step):
-            history, encoded, kv, joints, rotations, root, previous = carry
+            history, encoded, kv, joints, rotations, root, before, previous = carry
             latest = observed_frames - 1 + step
             if not cached:
                 encoded = self.ar_encoder(history, jnp.arange(length))
@@ -245,7 +251,8 @@ class JAT(nnx.Module):
             following = (current + self.ar_output(z)).astype(dtype)
             temporal, joint_features = following[..., :D], following[..., D:]
             root = root + self.translation(joint_features).astype(root.dtype)
-            params = self.hmr(temporal, start=previous if self.config.decode_from_previous else None)
+            params = self.hmr(temporal, start=decoding_start(self.config.decode_from, before, previous,
+                                                                    self.config.extrapolation))
             params = jax.tree.map(lambda new, old: new.astype(old.dtype), params, previous)
             new_joints = params_to_joints(body, params, root)
             new_inputs = jnp.concatenate([temporal, self.encode_joints(new_joints).astype(dtype)], axis=-1)
@@ -259,10 +266,11 @@ class JAT(nnx.Module):
                 new_kv = self.ar.key_values(new_encoded)
                 kv = KeyValues(*(write(cache, value[..., 0, :], -2) for cache, value in zip(kv, new_kv)))
                 encoded = write(encoded, new_encoded[..., 0, :], -2)
-            return (history, encoded, kv, joints, rotations, root, params), (temporal, joint_features, params, root)
+            return ((history, encoded, kv, joints, rotations, root, previous, params),
+                    (temporal, joint_features, params, root))
 
         carry = (history, encoded, kv, pad(joints, -3), pad(rotations, -4), observed.root[..., -1, :],
-                 last_frame(observed.params))
+                 last_frame(observed.params, min(2, observed_frames)), last_frame(observed.params))
         _, (temporal, joint_features, params, roots) = jax.lax.scan(advance, carry, jnp.arange(horizon))
         move = lambda x, axis: jnp.moveaxis(x, 0, axis)  # noqa: E731
         params = SMPLParams(move(params.rot6d, -3), move(params.betas, -2), move(params.camera, -2))

@@ -29,7 +29,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 import geometry
 
-from ._hmr import HMRHead, SMPLParams, mean_params
+from ._hmr import DecodeFrom, HMRHead, SMPLParams, decoding_start, mean_params
 from ._tcn import CausalTCN
 
 __all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "last_frame", "params_to_joints"]
@@ -49,12 +49,18 @@ class PHDTConfig:
     channels_per_group: int = 128
     delta_offsets: tuple[int, ...] = (-5, -10)
     num_shapes: int = 3
-    decode_from_previous: bool = False
-    """The rollout's f_HMR refines the previous frame's pose instead of the mean pose (the 3D forecasters, whose
-    observed poses are exact: each frame is then the last plus a change, as HMMR's delta predictors start from
-    the current estimate). False: the thesis' decoding, every frame from the mean."""
+    decode_from: DecodeFrom = "mean"
+    """Where the rollout's f_HMR starts each predicted frame (:data:`~dynamics.DecodeFrom`): the thesis' mean pose,
+    or, for the 3D forecasters whose observed poses are exact, the previous frame's pose, plain or moved on by its
+    last step (each frame is then the last plus a change, as HMMR's delta predictors start from the current
+    estimate)."""
+    extrapolation: float = 1.0
+    """With ``decode_from="extrapolated"``: the fraction of its last step the previous pose is moved on by
+    (:func:`~dynamics.decoding_start`)."""
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.extrapolation <= 1.0:
+            raise ValueError(f"extrapolation is a fraction of the last step, in [0, 1], got {self.extrapolation}")
         for channels in (self.feature_dim, self.feature_dim + self.joint_dim):
             if channels % self.channels_per_group:
                 raise ValueError(f"{channels} channels do not split into groups of {self.channels_per_group}")
@@ -97,9 +103,10 @@ def params_to_joints(body: geometry.BodyModel, params: SMPLParams, root: Float[A
     return joints - joints[..., :1, :] + root[..., None, :]
 
 
-def last_frame(params: SMPLParams) -> SMPLParams:
-    """The parameters of the last frame of ``params`` (frames on the axis before each field's own)."""
-    return SMPLParams(params.rot6d[..., -1, :, :], params.betas[..., -1, :], params.camera[..., -1, :])
+def last_frame(params: SMPLParams, back: int = 1) -> SMPLParams:
+    """The parameters of the last frame of ``params`` (frames on the axis before each field's own), or of the frame
+    ``back`` frames from the end."""
+    return SMPLParams(params.rot6d[..., -back, :, :], params.betas[..., -back, :], params.camera[..., -back, :])
 
 
 def crop_roots(params: SMPLParams, boxes: Float[Array, "*b 4"], K: Float[Array, "*b 3 3"]) -> Float[Array, "*b 3"]:
@@ -184,23 +191,27 @@ class PHDT(nnx.Module):
             raise ValueError(f"rollout needs at least {width} observed frames, got {observed.temporal.shape[-2]}")
         window = jnp.concatenate([observed.temporal, observed.joint_features], axis=-1)[..., -width:, :]
 
+        decode_from = self.config.decode_from
+
         def advance(carry, _):
-            window, root, params = carry
+            window, root, before, params = carry
             # The carry keeps its dtypes whatever the parameters' (float32 shipped models under jax_enable_x64).
             following = self.ar(window)[..., -1, :].astype(window.dtype)
             joint_features = following[..., self.config.feature_dim:]
             root = root + self.translation(joint_features).astype(root.dtype)
             window = jnp.concatenate([window[..., 1:, :], following[..., None, :]], axis=-2)
-            if self.config.decode_from_previous:
-                params = jax.tree.map(lambda new, old: new.astype(old.dtype),
-                                      self.hmr(following[..., :self.config.feature_dim], start=params), params)
-            return (window, root, params), (following, root, params)
+            if decode_from != "mean":
+                start = decoding_start(decode_from, before, params, self.config.extrapolation)
+                before, params = params, jax.tree.map(lambda new, old: new.astype(old.dtype),
+                                                      self.hmr(following[..., :self.config.feature_dim], start=start),
+                                                      params)
+            return (window, root, before, params), (following, root, params)
 
-        carry = (window, observed.root[..., -1, :], last_frame(observed.params))
+        carry = (window, observed.root[..., -1, :], last_frame(observed.params, 2), last_frame(observed.params))
         _, (predicted, roots, decoded) = jax.lax.scan(advance, carry, length=horizon, unroll=True)
         predicted, roots = jnp.moveaxis(predicted, 0, -2), jnp.moveaxis(roots, 0, -2)
         temporal = predicted[..., :self.config.feature_dim]
-        if self.config.decode_from_previous:
+        if decode_from != "mean":
             params = SMPLParams(jnp.moveaxis(decoded.rot6d, 0, -3), jnp.moveaxis(decoded.betas, 0, -2),
                                 jnp.moveaxis(decoded.camera, 0, -2))
         else:

@@ -32,8 +32,8 @@ import geometry
 import mocap
 import training
 
-__all__ = ["FORECAST_FPS", "FORECAST_HORIZONS_MS", "POSE_FEATURES", "PoseFrames", "canonical_window", "pose_features",
-           "pose_frames"]
+__all__ = ["FORECAST_FPS", "FORECAST_HORIZONS_MS", "POSE_FEATURES", "PoseFrames", "canonical_window", "mirror_frames",
+           "pose_features", "pose_frames"]
 
 FORECAST_FPS = 25.0
 """Frames per second of the forecasting data (the CMU files are 120 Hz)."""
@@ -109,6 +109,17 @@ def pose_frames(sources: Sequence[str | os.PathLike], body: geometry.BodyModel, 
     if path is not None:
         training.write_atomically(path, lambda file: np.savez(file, **frames._asdict()))
     return frames
+
+
+def mirror_frames(frames: PoseFrames, body: geometry.BodyModel) -> PoseFrames:
+    """The motion of ``frames`` in a mirrored world (x -> -x), every person's left and right swapped
+    (:attr:`~geometry.Skeleton.mirror`): rotations ``M R M`` with ``M = diag(-1, 1, 1)``, joints ``M p``. The
+    mirrored rotations pose ``body`` into the mirrored joints when it is left-right symmetric (the stand-in body
+    is); mirroring twice is the identity."""
+    mirror = list(body.skeleton.mirror)
+    flip = np.diag(np.asarray([-1.0, 1.0, 1.0], frames.rotations.dtype))
+    return frames._replace(rotations=flip @ frames.rotations[:, mirror] @ flip,
+                           joints3d=frames.joints3d[:, mirror] @ flip)
 
 
 def canonical_window(rotations: Float[Array, "N L 24 3 3"], joints: Float[Array, "N L 24 3"], last_observed: int

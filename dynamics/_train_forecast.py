@@ -3,11 +3,12 @@
 One resumable stage of the project loop (the stage runner of :mod:`dynamics._train`, with the adversarial prior
 trained alongside), all parts at once: the observed poses are exact, so there is no conditioning network to
 pre-train and freeze as in the video setting (a stated deviation from the thesis' two stages). Each step draws
-``batch_size`` windows of ``observed + horizon`` frames, each in the virtual camera frame of its last observed
-frame (:func:`~dynamics.canonical_window`); the objective is Eq. 4.12's on the predicted frames (``L_t``'s SMPL,
+``batch_size`` windows of ``observed + horizon`` frames from the training motion at several playback speeds and
+mirrored (:attr:`ForecastTrainConfig.speeds`, :attr:`ForecastTrainConfig.mirror`: the augmentations), each in the
+virtual camera frame of its last observed frame (:func:`~dynamics.canonical_window`); the objective is Eq. 4.12's on the predicted frames (``L_t``'s SMPL,
 3D-joint and adversarial terms, there is no image, and ``lambda_transl`` on the predicted pelvis against the
 true one) plus ``L_t`` of ``f_HMR`` decoding every observed frame's ``Phi_t`` (what the video models' first
-stage asks of it), from the previous observed frame's pose as the rollout decodes.
+stage asks of it), from the observed frames before it as the rollout decodes (:func:`~dynamics.decoding_start`).
 
 Validation (every choice of the study is made on it) is one training file of each action kept out of training:
 :func:`forecast_split`. :data:`FORECASTERS` are trained from one seed with the same steps and data; "JAT w/o
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from functools import partial
 from pathlib import Path
 
@@ -33,21 +34,25 @@ import training
 
 from ._data import gather_windows, window_starts
 from ._forecast import ForecasterConfig, PoseForecaster, forecast_joints
+from ._hmr import decoding_start
 from ._jat import JATConfig
 from ._losses import FrameTargets, LossWeights, frame_losses
 from ._phdt import PHDTConfig
-from ._poses import FORECAST_FPS, PoseFrames, canonical_window, pose_frames
+from ._poses import FORECAST_FPS, PoseFrames, canonical_window, mirror_frames, pose_frames
 from ._train import StageConfig, _run_stage
 
 __all__ = ["FORECASTERS", "ForecastTrainConfig", "canonical_windows", "forecast_split", "initial_forecaster",
            "load_forecasters", "train_forecaster", "train_forecasters"]
 
+# Each predicted frame decoded from the previous one moved on by half its last step: chosen on the validation files
+# (docs/dynamics.md) over the previous pose as it is and over the whole step.
+_DECODING = dict(decode_from="extrapolated", extrapolation=0.5)
 _SMALL_JAT = JATConfig(feature_dim=128, temporal_dim=128, joint_dim=64, hmr_hidden=256, hmr_dropout=0.0,
-                       bias_hidden=64, decode_from_previous=True)
+                       bias_hidden=64, **_DECODING)
 FORECASTERS: dict[str, ForecasterConfig] = {
     # No delta predictors: they supervise f_movie from the past frames of a video; here the past is observed.
     "PHD+T": ForecasterConfig(phdt=PHDTConfig(feature_dim=128, joint_dim=64, hmr_hidden=256, hmr_dropout=0.0,
-                                              channels_per_group=64, delta_offsets=(), decode_from_previous=True)),
+                                              channels_per_group=64, delta_offsets=(), **_DECODING)),
     "JAT": ForecasterConfig(jat=_SMALL_JAT),
     "JAT w/o bias": ForecasterConfig(jat=dataclasses.replace(_SMALL_JAT, joint_aware_bias=False)),
 }
@@ -69,6 +74,11 @@ class ForecastTrainConfig:
     horizon: int = 25
     """Frames predicted in training (1 s: the benchmark's longest horizon)."""
     fps: float = FORECAST_FPS
+    speeds: tuple[float, ...] = (0.8, 0.9, 1.0, 1.1, 1.2)
+    """Playback speeds of the training motion (an augmentation): each file resampled ``speed`` times faster, one set
+    of windows per speed. Validation is at speed 1."""
+    mirror: bool = True
+    """Also train on the mirrored motion (:func:`~dynamics.mirror_frames`: left and right swapped), an augmentation."""
     seed: int = 0
     checkpoint_interval: int = 250
     validation_interval: int = 250
@@ -85,6 +95,8 @@ class ForecastTrainConfig:
         shared = sorted(set(map(os.path.abspath, self.files)) & set(map(os.path.abspath, self.validation_files)))
         if shared:
             raise ValueError(f"{shared[0]} is both a training and a validation file")
+        if not self.speeds or min(self.speeds) <= 0:
+            raise ValueError(f"speeds must be positive, got {self.speeds}")
         if self.observed < 2 or self.horizon < 1:
             raise ValueError(f"need observed >= 2 and horizon >= 1, got {self.observed} and {self.horizon}")
 
@@ -113,6 +125,13 @@ def canonical_windows(frames: PoseFrames, starts: np.ndarray, length: int, obser
     return windows._replace(rotations=np.asarray(rotations), joints3d=np.asarray(joints))
 
 
+def _joined(parts: list[PoseFrames]) -> PoseFrames:
+    """The rows of ``parts`` one after the other, each part's tracks numbered after the previous parts'."""
+    offsets = np.cumsum([0] + [int(part.track.max()) + 1 for part in parts[:-1]])
+    parts = [part._replace(track=part.track + offset) for part, offset in zip(parts, offsets)]
+    return PoseFrames(*(np.concatenate(column) for column in zip(*parts)))
+
+
 def _targets(rows: PoseFrames) -> FrameTargets:
     return FrameTargets(rows.rotations, rows.betas, rows.joints3d, None, None, None)
 
@@ -122,14 +141,14 @@ def _forecast_objective(config: ForecastTrainConfig, body, model: PoseForecaster
     frames = lambda start, stop: jax.tree.map(lambda x: x[:, :, start:stop], rows)  # noqa: E731
     past, future = frames(0, T), frames(T, T + H)
     observed = model.observe(past.rotations, past.betas, past.joints3d)
-    # f_HMR decodes every observed frame as the rollout decodes a predicted one: from the previous frame's pose, or
-    # from the mean pose.
-    if config.model.model.decode_from_previous:
-        previous = jax.tree.map(lambda x: x[:, :, :-1], observed.params)
-        decoded = model.decode(observed.temporal[:, :, 1:], previous, key)
-        shown = frames(1, T)
-    else:
-        decoded, shown = model.decode(observed.temporal, key=key), past
+    # f_HMR decodes every observed frame as the rollout decodes a predicted one: from the mean pose, or from the frames
+    # before it (the first one or two frames have too few of them).
+    decode_from = config.model.model.decode_from
+    first = {"mean": 0, "previous": 1, "extrapolated": 2}[decode_from]
+    before = lambda back: jax.tree.map(lambda x: x[:, :, first - back:T - back], observed.params)  # noqa: E731
+    start = None if first == 0 else decoding_start(decode_from, before(min(2, first)), before(1),
+                                                   config.model.model.extrapolation)
+    decoded, shown = model.decode(observed.temporal[:, :, first:], start, key), frames(first, T)
     decoded = frame_losses(body, decoded, None, _targets(shown), None, config.losses)
     rollout = model.rollout(body, observed, H)
     terms = frame_losses(body, rollout.params, None, _targets(future), prior, config.losses)
@@ -168,7 +187,10 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     length = config.observed + config.horizon
-    frames = pose_frames(config.files, body, config.fps, cache_dir, progress)
+    frames = _joined([pose_frames(config.files, body, config.fps / speed, cache_dir, progress)
+                      for speed in config.speeds])
+    if config.mirror:
+        frames = _joined([frames, mirror_frames(frames, body)])
     validation = pose_frames(config.validation_files, body, config.fps, cache_dir, progress)
     starts = window_starts(frames, length)
     validation_windows = canonical_windows(validation, window_starts(validation, length, stride=10), length,
@@ -193,16 +215,18 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
 
 
 def train_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
-                      names: Iterable[str] = tuple(FORECASTERS), log: Callable[[dict], None] = lambda record: None,
-                      progress: bool = True) -> dict[str, PoseForecaster]:
-    """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced), in
-    ``workdir/<name>/``, the data cached once for all; the models are copied to ``workdir/models/<name>``."""
+                      names: Iterable[str] = tuple(FORECASTERS), model_changes: Mapping[str, object] | None = None,
+                      log: Callable[[dict], None] = lambda record: None, progress: bool = True
+                      ) -> dict[str, PoseForecaster]:
+    """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced, with
+    ``model_changes`` to its model's config, e.g. ``decode_from``), in ``workdir/<name>/``, the data cached once for
+    all; the models are copied to ``workdir/models/<name>``."""
     workdir = Path(workdir)
     if config.cache_dir is None:
         config = dataclasses.replace(config, cache_dir=str((workdir / "data_cache").resolve()))
     models = {}
     for name in names:
-        model = FORECASTERS[name]
+        model = FORECASTERS[name].replace_model(**(model_changes or {}))
         models[name] = train_forecaster(dataclasses.replace(config, model=model), workdir / _folder(name), body,
                                         resume=resume, log=lambda record, name=name: log({"model": name, **record}),
                                         progress=progress)

@@ -27,7 +27,7 @@ from experiments import _cli
 from experiments.dynamics_study import run_forecast_study
 
 QUICK_STRIDE = 25
-QUICK_TRAIN = dict(stage=StageConfig(steps=10, batch_size=4, learning_rate=5e-4, warmup_steps=2),
+QUICK_TRAIN = dict(stage=StageConfig(steps=10, batch_size=4, learning_rate=5e-4, warmup_steps=2), speeds=(1.0,),
                    checkpoint_interval=5, validation_interval=10, log_interval=5)
 
 
@@ -47,10 +47,21 @@ class Config:
     """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
     train_names: tuple[str, ...] = tuple(FORECASTERS)
     """With --train: the forecasters to train and score (default: all of dynamics.FORECASTERS)."""
+    train_speeds: tuple[float, ...] = ForecastTrainConfig.speeds
+    """With --train: playback speeds of the training motion (augmentation; 1: as recorded)."""
+    train_mirror: bool = ForecastTrainConfig.mirror
+    """With --train: also train on the mirrored motion (left and right swapped; augmentation)."""
+    train_decode_from: Literal["previous", "extrapolated"] | None = None
+    """With --train: where f_HMR starts each predicted frame, the previous pose or the previous pose moved on by
+    its last step (default: each forecaster's own in dynamics.FORECASTERS)."""
+    train_extrapolation: float | None = None
+    """With --train: the fraction of its last step the previous pose is moved on by when decoding from the
+    extrapolated pose, in [0, 1] (default: each forecaster's own)."""
     model_dir: Path = SHIPPED_FORECASTERS
     """Folder with the forecasters (default: the shipped dynamics/assets/forecasters)."""
     quick: bool = False
-    """Windows every 25 frames instead of every 10; with --train, 10 steps per model (a smoke run)."""
+    """Windows every 25 frames instead of every 10; with --train, 10 steps per model on the motion at its recorded
+    speed (a smoke run)."""
     seed: int = 0
     """Training seed (with --train)."""
     progress: bool = True
@@ -64,18 +75,28 @@ class Config:
         for name in ("train_steps", "train_batch"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.train_extrapolation is not None and not 0.0 <= self.train_extrapolation <= 1.0:
+            raise ValueError(f"--train-extrapolation must be in [0, 1], got {self.train_extrapolation}")
+        if not self.train_speeds or min(self.train_speeds) <= 0:
+            raise ValueError(f"--train-speeds must be positive, got {self.train_speeds}")
         unknown = sorted(set(self.train_names) - set(FORECASTERS))
         if unknown or not self.train_names:
             raise ValueError(f"--train-names must name forecasters of {sorted(FORECASTERS)}, got {unknown}")
 
     def train_config(self, files: tuple[str, ...], validation_files: tuple[str, ...]) -> ForecastTrainConfig:
         """The training run --train makes (before each forecaster's ``model`` is set)."""
-        config = ForecastTrainConfig(files, validation_files, seed=self.seed)
+        config = ForecastTrainConfig(files, validation_files, speeds=self.train_speeds, mirror=self.train_mirror,
+                                     seed=self.seed)
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
         stage = dataclasses.replace(config.stage, **{name: value for name, value in (
             ("steps", self.train_steps), ("batch_size", self.train_batch)) if value is not None})
         return dataclasses.replace(config, stage=stage)
+
+    def model_changes(self) -> dict:
+        """What --train changes in every forecaster's model config."""
+        return {name: value for name, value in (("decode_from", self.train_decode_from),
+                                                ("extrapolation", self.train_extrapolation)) if value is not None}
 
 
 def main(config: Config) -> None:
@@ -88,7 +109,8 @@ def main(config: Config) -> None:
         log = _cli.jsonl_log(out)
         if config.train:
             models = train_forecasters(config.train_config(training_files, validation_files), workdir, body,
-                                       names=config.train_names, resume=True, log=log, progress=config.progress)
+                                       names=config.train_names, model_changes=config.model_changes(),
+                                       resume=True, log=log, progress=config.progress)
         else:
             models = load_forecasters(config.model_dir)
         summary = run_forecast_study(out, models, body, files, stride=QUICK_STRIDE if config.quick else 10,

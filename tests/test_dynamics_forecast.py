@@ -13,6 +13,7 @@ from flax import nnx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy.spatial.transform import Rotation
 
 import dynamics
 import geometry
@@ -49,6 +50,19 @@ def _two_people(seed: int) -> tuple[np.ndarray, np.ndarray]:
 def _yaw(angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_mirrored_frames_are_posed_by_their_rotations_and_mirror_back():
+    rotations, joints = _world_window(3)
+    frames = dynamics.PoseFrames(rotations, np.zeros((6, 3), np.float32), joints, *[np.zeros(6, np.int32)] * 4)
+    mirrored = dynamics.mirror_frames(frames, BODY)
+    pose = jax.vmap(geometry.body_joints, in_axes=(None, 0, None, None))
+    posed = np.asarray(pose(BODY, jnp.asarray(mirrored.rotations), jnp.zeros(3), jnp.zeros(3)))
+    assert_allclose(posed - posed[:, :1], mirrored.joints3d - mirrored.joints3d[:, :1], atol=1e-5)
+    assert_allclose(mirrored.joints3d[:, 1, 0], -joints[:, 2, 0], atol=1e-6)  # the left hip where the right one was
+    twice = dynamics.mirror_frames(mirrored, BODY)
+    assert_allclose(twice.rotations, rotations, atol=1e-6)
+    assert_allclose(twice.joints3d, joints, atol=1e-6)
 
 
 @settings(max_examples=15, deadline=None)
@@ -121,26 +135,50 @@ def test_forecasters_take_scenes_and_refuse_bad_shapes(model):
         forecaster.observe(scene(rotations), jnp.zeros((2, 1, 14, 5)), scene(joints))  # 5 shape coefficients
     with pytest.raises(ValueError, match="exactly one of phdt and jat"):
         dynamics.ForecasterConfig()
+    with pytest.raises(ValueError, match="extrapolation is a fraction of the last step"):
+        dataclasses.replace(next(iter(model.values())), extrapolation=1.5)
 
 
-@pytest.mark.parametrize("model", [dict(jat=TINY_JAT), dict(phdt=TINY_PHDT)], ids=["JAT", "PHD+T"])
-def test_decoding_from_the_previous_frame_with_a_silent_decoder_is_zero_motion(model):
-    """f_HMR refines the previous frame's pose: with its decoder silent (and f_transl untrained, zero-initialised),
-    every predicted frame is the last observed one, as ZeroMotion's; decoding from the mean pose it is not."""
+EVERY_START = (("previous", 1.0), ("extrapolated", 1.0), ("mean", 1.0), ("extrapolated", 1 / 3))
+
+
+# JAT (its rollout op by op takes a while) with two starts: its carry's order of the two previous frames shows in both.
+@pytest.mark.parametrize(("model", "starts"), [(dict(jat=TINY_JAT), EVERY_START[::3]),
+                                               (dict(phdt=TINY_PHDT), EVERY_START)], ids=["JAT", "PHD+T"])
+def test_a_silent_decoder_repeats_or_extrapolates_the_last_pose(model, starts):
+    """f_HMR refines the previous frame's pose, plain or moved on by its last step: with its decoder silent (and
+    f_transl untrained, zero-initialised), every predicted frame is the last observed one, as ZeroMotion's, or the
+    last rotations turned on by their last step at every predicted frame, or the first by a third of it; decoding
+    from the mean pose it is none of these."""
     rotations, joints = _world_window(2, frames=14)
     rotations, joints = dynamics.canonical_window(jnp.asarray(rotations[None]), jnp.asarray(joints[None]), 13)
     scene = lambda x: x[None]  # noqa: E731
     betas = jnp.zeros((1, 1, 14, 3))
+    zero = np.asarray(dynamics.zero_motion_forecast(joints[0], 3))
+    step = np.asarray(rotations[0, -1] @ jnp.swapaxes(rotations[0, -2], -1, -2))  # R_t R_{t-1}^T per joint
+    turned = [np.asarray(rotations[0, -1])]
+    for _ in range(3):
+        turned.append(step @ turned[-1])
+    pose = jax.vmap(geometry.body_joints, in_axes=(None, 0, None, None))
+    extrapolated = np.array(pose(BODY, jnp.asarray(np.stack(turned[1:])), jnp.zeros(3), jnp.zeros(3)))
+    extrapolated += np.asarray(joints[0, -1, 0]) - extrapolated[:, :1]  # the pelvis stays (f_transl is silent)
+    # A third of the last step (SciPy's rotation vectors): the first predicted frame only.
+    third = Rotation.from_rotvec(Rotation.from_matrix(step.reshape(-1, 3, 3)).as_rotvec() / 3.0).as_matrix()
+    slowed = np.array(pose(BODY, jnp.asarray(third.reshape(1, 24, 3, 3) @ turned[0]), jnp.zeros(3), jnp.zeros(3)))[0]
+    slowed += np.asarray(joints[0, -1, 0]) - slowed[:1]
     config = next(iter(model.values()))
-    for decode_from_previous in (True, False):
-        models = {name: dataclasses.replace(config, decode_from_previous=decode_from_previous) for name in model}
+    for decode_from, extrapolation in starts:
+        models = {name: dataclasses.replace(config, decode_from=decode_from, extrapolation=extrapolation)
+                  for name in model}
         forecaster = dynamics.PoseForecaster(dynamics.ForecasterConfig(**models), rngs=nnx.Rngs(0))
         head = forecaster.model.hmr
         head.decoder.kernel[...] = jnp.zeros_like(head.decoder.kernel[...])
         head.decoder.bias[...] = jnp.zeros_like(head.decoder.bias[...])
         predicted = np.asarray(dynamics.forecast_joints(forecaster, BODY, scene(rotations), betas, scene(joints), 3))
-        zero = np.asarray(dynamics.zero_motion_forecast(joints[0], 3))
-        assert np.allclose(predicted[0, 0], zero, atol=1e-5) == decode_from_previous
+        constant = decode_from == "extrapolated" and extrapolation == 1.0
+        assert np.allclose(predicted[0, 0], zero, atol=1e-5) == (decode_from == "previous"), decode_from
+        assert np.allclose(predicted[0, 0], extrapolated, atol=1e-4) == constant, decode_from
+        assert np.allclose(predicted[0, 0, 0], slowed, atol=1e-4) == (extrapolation != 1.0), decode_from
 
 
 def test_the_bias_ablation_starts_where_jat_starts():
@@ -170,6 +208,8 @@ def test_forecast_split_keeps_one_file_per_action_for_validation(data_root):
         dynamics.ForecastTrainConfig(training_files + (test_file,), validation_files)
     with pytest.raises(ValueError, match="is both a training and a validation file"):
         dynamics.ForecastTrainConfig(training_files, validation_files + training_files[:1])
+    with pytest.raises(ValueError, match="speeds must be positive"):
+        dynamics.ForecastTrainConfig(training_files, validation_files, speeds=())
 
 
 def test_pose_frames_of_a_real_file(data_root, tmp_path):
@@ -212,11 +252,14 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
         target.parent.mkdir(exist_ok=True)
         target.write_text("\n".join(source.read_text().splitlines()[:400]) + "\n")
         files.append(str(target))
+    # Decoding from the extrapolated pose, the motion at two speeds and mirrored (the augmentations).
+    model = dynamics.ForecasterConfig(jat=dataclasses.replace(TINY_JAT, decode_from="extrapolated"))
     config = dynamics.ForecastTrainConfig(
-        tuple(files[:2]), tuple(files[2:]), model=dynamics.ForecasterConfig(jat=TINY_JAT),
+        tuple(files[:2]), tuple(files[2:]), model=model, speeds=(1.0, 1.25), mirror=True,
         stage=dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1), observed=6,
         horizon=3, checkpoint_interval=2, validation_interval=4, log_interval=1, cache_dir=str(tmp_path / "cache"))
     full = dynamics.train_forecaster(config, tmp_path / "full", BODY, resume=False, progress=False)
+    assert len(list((tmp_path / "cache").glob("pose_frames_*.npz"))) == 3  # training at 2 speeds, validation
     with pytest.raises(Killed):
         dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=False, log=kill_at(3), progress=False)
     resumed = dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=True, progress=False)
@@ -242,12 +285,15 @@ def test_command_refuses_a_missing_data_folder(tmp_path, capsys):
 def test_command_line_training_options(data_root, tmp_path):
     from experiments import dynamics_forecast
     config = dynamics_forecast.Config(out=tmp_path, data_root=data_root, train=True, train_steps=4000,
-                                      train_batch=64, train_names=("PHD+T",))
+                                      train_batch=64, train_names=("PHD+T",), train_speeds=(0.9, 1.1),
+                                      train_mirror=True)
     train = config.train_config(("a.txt",), ("b.txt",))
     assert (train.stage.steps, train.stage.batch_size) == (4000, 64)
+    assert train.speeds == (0.9, 1.1) and train.mirror
     assert train.stage.learning_rate == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.learning_rate
     for options, message in (({"train_steps": 0}, "--train-steps must be >= 1"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
+                             ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
         with pytest.raises(ValueError, match=message):
             dynamics_forecast.Config(out=tmp_path, data_root=data_root, **options)
