@@ -54,7 +54,7 @@ def mean_params(num_shapes: int) -> SMPLParams:
 
 DecodeFrom = Literal["mean", "previous", "extrapolated"]
 """Where an autoregressive model's f_HMR starts each predicted frame: HMR's mean pose (the thesis), the previous
-frame's pose, or the previous frame's pose moved on by its last step (:func:`decoding_start`)."""
+frame's pose, or the previous frame's pose moved on by (a fraction of) its last step (:func:`decoding_start`)."""
 
 
 def decoding_start(decode_from: DecodeFrom, before: SMPLParams, previous: SMPLParams, extrapolation: float = 1.0
