@@ -57,6 +57,12 @@ DecodeFrom = Literal["mean", "previous", "extrapolated"]
 frame's pose, or the previous frame's pose moved on by (a fraction of) its last step (:func:`decoding_start`)."""
 
 
+def _check_extrapolation(extrapolation: float) -> None:
+    """Refuse a fraction of the last step outside [0, 1] (the models' configs call it)."""
+    if not 0.0 <= extrapolation <= 1.0:
+        raise ValueError(f"extrapolation is a fraction of the last step, in [0, 1], got {extrapolation}")
+
+
 def decoding_start(decode_from: DecodeFrom, before: SMPLParams, previous: SMPLParams, extrapolation: float = 1.0
                    ) -> SMPLParams | None:
     """The parameters f_HMR refines into the frame after ``previous`` (``before`` is the frame before that): None

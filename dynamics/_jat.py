@@ -39,7 +39,7 @@ import geometry
 
 from ._attention import GPTLayer, InputEncoder, KeyValues, agent_masks
 from ._canonical import JointAwareBias, canonical_features
-from ._hmr import DecodeFrom, HMRHead, SMPLParams, decoding_start, mean_params
+from ._hmr import DecodeFrom, HMRHead, SMPLParams, _check_extrapolation, decoding_start, mean_params
 from ._phdt import Observation, Rollout, crop_roots, last_frame, params_to_joints
 
 __all__ = ["JAT", "JATConfig", "box_features", "scene_tokens"]
@@ -72,8 +72,7 @@ class JATConfig:
     (:func:`~dynamics.decoding_start`)."""
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.extrapolation <= 1.0:
-            raise ValueError(f"extrapolation is a fraction of the last step, in [0, 1], got {self.extrapolation}")
+        _check_extrapolation(self.extrapolation)
         if self.receptive_field < 1:
             raise ValueError(f"receptive_field must be >= 1, got {self.receptive_field}")
         for name in ("temporal_dim", "joint_dim"):

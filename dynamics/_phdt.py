@@ -29,7 +29,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 import geometry
 
-from ._hmr import DecodeFrom, HMRHead, SMPLParams, decoding_start, mean_params
+from ._hmr import DecodeFrom, HMRHead, SMPLParams, _check_extrapolation, decoding_start, mean_params
 from ._tcn import CausalTCN
 
 __all__ = ["Observation", "PHDT", "PHDTConfig", "Rollout", "crop_roots", "last_frame", "params_to_joints"]
@@ -59,8 +59,7 @@ class PHDTConfig:
     (:func:`~dynamics.decoding_start`)."""
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.extrapolation <= 1.0:
-            raise ValueError(f"extrapolation is a fraction of the last step, in [0, 1], got {self.extrapolation}")
+        _check_extrapolation(self.extrapolation)
         for channels in (self.feature_dim, self.feature_dim + self.joint_dim):
             if channels % self.channels_per_group:
                 raise ValueError(f"{channels} channels do not split into groups of {self.channels_per_group}")

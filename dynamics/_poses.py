@@ -112,14 +112,12 @@ def pose_frames(sources: Sequence[str | os.PathLike], body: geometry.BodyModel, 
 
 
 def mirror_frames(frames: PoseFrames, body: geometry.BodyModel) -> PoseFrames:
-    """The motion of ``frames`` in a mirrored world (x -> -x), every person's left and right swapped
-    (:attr:`~geometry.Skeleton.mirror`): rotations ``M R M`` with ``M = diag(-1, 1, 1)``, joints ``M p``. The
-    mirrored rotations pose ``body`` into the mirrored joints when it is left-right symmetric (the stand-in body
-    is); mirroring twice is the identity."""
-    mirror = list(body.skeleton.mirror)
-    flip = np.diag(np.asarray([-1.0, 1.0, 1.0], frames.rotations.dtype))
-    return frames._replace(rotations=flip @ frames.rotations[:, mirror] @ flip,
-                           joints3d=frames.joints3d[:, mirror] @ flip)
+    """The motion of ``frames`` in a mirrored world, every person's left and right swapped
+    (:func:`mocap.mirror_pose`), in the frames' own precision. The mirrored rotations pose ``body`` into the mirrored
+    joints when it is left-right symmetric (the stand-in body is); mirroring twice is the identity."""
+    rotations, joints = mocap.mirror_pose(frames.rotations, frames.joints3d, body.skeleton)
+    return frames._replace(rotations=rotations.astype(frames.rotations.dtype),
+                           joints3d=joints.astype(frames.joints3d.dtype))
 
 
 def canonical_window(rotations: Float[Array, "N L 24 3 3"], joints: Float[Array, "N L 24 3"], last_observed: int

@@ -5,10 +5,11 @@ trained alongside), all parts at once: the observed poses are exact, so there is
 pre-train and freeze as in the video setting (a stated deviation from the thesis' two stages). Each step draws
 ``batch_size`` windows of ``observed + horizon`` frames from the training motion at several playback speeds and
 mirrored (:attr:`ForecastTrainConfig.speeds`, :attr:`ForecastTrainConfig.mirror`: the augmentations), each in the
-virtual camera frame of its last observed frame (:func:`~dynamics.canonical_window`); the objective is Eq. 4.12's on the predicted frames (``L_t``'s SMPL,
-3D-joint and adversarial terms, there is no image, and ``lambda_transl`` on the predicted pelvis against the
-true one) plus ``L_t`` of ``f_HMR`` decoding every observed frame's ``Phi_t`` (what the video models' first
-stage asks of it), from the observed frames before it as the rollout decodes (:func:`~dynamics.decoding_start`).
+virtual camera frame of its last observed frame (:func:`~dynamics.canonical_window`); the objective is Eq. 4.12's
+on the predicted frames (``L_t``'s SMPL, 3D-joint and adversarial terms, there is no image, and ``lambda_transl``
+on the predicted pelvis against the true one) plus ``L_t`` of ``f_HMR`` decoding every observed frame's ``Phi_t``
+(what the video models' first stage asks of it), from the observed frames before it as the rollout decodes
+(:func:`~dynamics.decoding_start`).
 
 Validation (every choice of the study is made on it) is one training file of each action kept out of training:
 :func:`forecast_split`. :data:`FORECASTERS` are trained from one seed with the same steps and data; "JAT w/o

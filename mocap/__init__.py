@@ -118,6 +118,7 @@ from ._shelf_campus import shelf_test_frames as shelf_test_frames
 from ._video import Video as Video
 from ._video import VideoConfig as VideoConfig
 from ._video import flip_video as flip_video
+from ._video import mirror_pose as mirror_pose
 from ._video import jitter_boxes as jitter_boxes
 from ._video import synthesise_video as synthesise_video
 

@@ -29,7 +29,7 @@ from geometry import BodyModel, Camera
 from ._render import rasterise, render_people
 from ._retarget import BodyMotion, _rest_joints
 
-__all__ = ["Video", "VideoConfig", "flip_video", "jitter_boxes", "synthesise_video"]
+__all__ = ["Video", "VideoConfig", "flip_video", "jitter_boxes", "mirror_pose", "synthesise_video"]
 
 _MIRROR_X = np.diag([-1.0, 1.0, 1.0])
 """The mirror of the camera frame that a horizontal image flip is."""
@@ -297,6 +297,16 @@ def synthesise_video(motion: BodyMotion, model: BodyModel, config: VideoConfig, 
                  _project(K, joints3d), boxes, np.stack(visibility, axis=1))
 
 
+def mirror_pose(rotations: Float[np.ndarray, "*b J 3 3"], joints: Float[np.ndarray, "*b J 3"],
+                skeleton: geometry.Skeleton) -> tuple[Float[np.ndarray, "*b J 3 3"], Float[np.ndarray, "*b J 3"]]:
+    """Poses in a world mirrored through its yz plane (x -> -x), each person's left and right swapped
+    (:attr:`~geometry.Skeleton.mirror`): rotations ``M R M`` and points ``M p`` with ``M = diag(-1, 1, 1)``
+    (float64; the signs change, the values stay exact). For a left-right symmetric body model the mirrored
+    rotations pose it into the mirrored joints; mirroring twice is the identity."""
+    mirror = list(skeleton.mirror)
+    return _MIRROR_X @ rotations[..., mirror, :, :] @ _MIRROR_X, joints[..., mirror, :] @ _MIRROR_X
+
+
 def flip_video(video: Video, model: BodyModel) -> Video:
     """The horizontal mirror of ``video``: what a mirrored world, with every person's left and right swapped
     (:attr:`~geometry.Skeleton.mirror`), looks like. Pixels ``x -> W - 1 - x``; camera-frame points
@@ -309,6 +319,7 @@ def flip_video(video: Video, model: BodyModel) -> Video:
     rest_root = _rest_joints(model, video.betas)[:, model.skeleton.root][:, None]  # (P, 1, 3)
     # The flipped person's pelvis M (J0 + translation) must equal J0 + flipped translation.
     translation = (video.translation + rest_root) @ _MIRROR_X - rest_root
+    rotations, joints3d = mirror_pose(video.rotations, video.joints3d, model.skeleton)
     joints2d = video.joints2d[:, :, mirror].copy()
     joints2d[..., 0] = width - 1 - joints2d[..., 0]
     x0, y0, x1, y1 = np.moveaxis(video.boxes, -1, 0)
@@ -319,8 +330,7 @@ def flip_video(video: Video, model: BodyModel) -> Video:
                            np.asarray(video.camera.t, np.float64) @ _MIRROR_X, video.camera.dist,
                            video.camera.image_size)
     return Video(np.ascontiguousarray(video.frames[:, :, ::-1]), camera,
-                 _MIRROR_X @ video.rotations[:, :, mirror] @ _MIRROR_X, video.betas.copy(), translation,
-                 video.joints3d[:, :, mirror] @ _MIRROR_X, joints2d,
+                 rotations, video.betas.copy(), translation, joints3d, joints2d,
                  np.stack([width - 1 - x1, y0, width - 1 - x0, y1], axis=-1), video.visibility.copy())
 
 
