@@ -9,7 +9,9 @@
   discriminators on rotations and shape.
 - :class:`PoseForecaster` (:data:`FORECASTERS`, :func:`train_forecasters`, :func:`load_forecasters`): the same
   models conditioned on observed 3D poses, on the CMU-Mocap benchmark's motion (:func:`pose_frames`), beside
-  :func:`zero_motion_forecast` and :func:`constant_velocity_forecast` (``python -m experiments.dynamics_forecast``).
+  :func:`zero_motion_forecast` and :func:`constant_velocity_forecast` (``python -m experiments.dynamics_forecast``);
+  on scenes of two people, :data:`PAIR_FORECASTERS` (JAT, MPJAT) fine-tuned on a CMU salsa pair
+  (:func:`train_pair_forecasters`, :func:`pair_split`).
 
 Sizes are constructor arguments with CPU-sized defaults; each private module lists its public names in
 ``__all__`` and they are re-exported here. The evaluation's orchestration, tables and figures
@@ -42,6 +44,7 @@ from ._data import Frames as Frames
 from ._data import TEST_MULTI_PERSON_CLIPS as TEST_MULTI_PERSON_CLIPS
 from ._data import TEST_SINGLE_PERSON_CLIPS as TEST_SINGLE_PERSON_CLIPS
 from ._data import TRAIN_CLIPS as TRAIN_CLIPS
+from ._evaluate import forecast_scenes as forecast_scenes
 from ._evaluate import frame_metrics as frame_metrics
 from ._evaluate import predict_windows as predict_windows
 from ._evaluate import summarise as summarise
@@ -49,6 +52,7 @@ from ._evaluate import zero_motion as zero_motion
 from ._evaluate import EvalConfig as EvalConfig
 from ._evaluate import HORIZONS as HORIZONS
 from ._evaluate import METRICS as METRICS
+from ._evaluate import SCENE_BATCH as SCENE_BATCH
 from ._forecast import constant_velocity_forecast as constant_velocity_forecast
 from ._forecast import forecast_joints as forecast_joints
 from ._forecast import zero_motion_forecast as zero_motion_forecast
@@ -66,9 +70,11 @@ from ._jat import JATConfig as JATConfig
 from ._losses import frame_losses as frame_losses
 from ._losses import interpenetration as interpenetration
 from ._losses import penetration_depths as penetration_depths
+from ._losses import penetration_surfaces as penetration_surfaces
 from ._losses import shape_consistency as shape_consistency
 from ._losses import FrameTargets as FrameTargets
 from ._losses import LossWeights as LossWeights
+from ._losses import PenetrationSurfaces as PenetrationSurfaces
 from ._losses import PENETRATION_POINTS as PENETRATION_POINTS
 from ._phdt import crop_roots as crop_roots
 from ._phdt import last_frame as last_frame
@@ -99,13 +105,18 @@ from ._train import train as train
 from ._train import BackboneConfig as BackboneConfig
 from ._train import StageConfig as StageConfig
 from ._train import TrainConfig as TrainConfig
-from ._train_forecast import canonical_windows as canonical_windows
+from ._train_forecast import canonical_scenes as canonical_scenes
 from ._train_forecast import forecast_split as forecast_split
 from ._train_forecast import initial_forecaster as initial_forecaster
+from ._train_forecast import load_forecaster as load_forecaster
 from ._train_forecast import load_forecasters as load_forecasters
+from ._train_forecast import pair_split as pair_split
+from ._train_forecast import scene_rows as scene_rows
 from ._train_forecast import train_forecaster as train_forecaster
 from ._train_forecast import train_forecasters as train_forecasters
+from ._train_forecast import train_pair_forecasters as train_pair_forecasters
 from ._train_forecast import FORECASTERS as FORECASTERS
+from ._train_forecast import PAIR_FORECASTERS as PAIR_FORECASTERS
 from ._train_forecast import ForecastTrainConfig as ForecastTrainConfig
 from ._train_jat import as_multi_person as as_multi_person
 from ._train_jat import load_transformers as load_transformers

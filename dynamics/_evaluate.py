@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 import geometry
 
@@ -42,7 +43,8 @@ from ._phdt import Observation, PHDTConfig, Rollout, params_to_joints
 PHDT_RECEPTIVE_FIELD = PHDTConfig().tcn_blocks * 2 * (PHDTConfig().tcn_kernel - 1) + 1
 """13: conditioning is scored from this frame on, the first PHD+T reconstructs with a full receptive field."""
 
-__all__ = ["EvalConfig", "HORIZONS", "METRICS", "frame_metrics", "predict_windows", "summarise", "zero_motion"]
+__all__ = ["EvalConfig", "HORIZONS", "METRICS", "SCENE_BATCH", "forecast_scenes", "frame_metrics", "predict_windows",
+           "summarise", "zero_motion"]
 
 HORIZONS: tuple[int, ...] = (1, 5, 10, 20, 30)
 METRICS: tuple[str, ...] = ("pa_mpjpe", "mpjpe", "pck", "root")
@@ -97,8 +99,40 @@ def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Arra
     }
 
 
+SCENE_BATCH = 16
+"""Scenes per call of a model's compiled forecast (:func:`forecast_scenes`; the last batch padded)."""
+
+
+@partial(jax.jit, static_argnums=(0, 3, 4))
+def _observe_and_roll_out(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, observed: int,
+                          horizon: int, features, boxes, K, present) -> tuple[Observation, Rollout]:
+    model = nnx.merge(graphdef, state)
+    seen = model.observe(body, features[:, :, :observed], boxes[:, :, :observed], K[:, :, :observed], present)
+    return seen, model.rollout(body, seen, horizon, present)
+
+
+def forecast_scenes(model: nnx.Module, body: geometry.BodyModel, features: Float[ArrayLike, "S N T D"],
+                    boxes: Float[ArrayLike, "S N T 4"], K: Float[ArrayLike, "S N T 3 3"],
+                    present: Bool[ArrayLike, "S N"], observed: int, horizon: int) -> tuple[Observation, Rollout]:
+    """``model``'s (PHD+T or a transformer) reconstruction of the first ``observed`` frames of each scene and its
+    ``horizon`` frames after them, in batches of :data:`SCENE_BATCH` scenes through one compilation per model and
+    scene shape (the evaluation's windows and the strip of ``experiments.dynamics`` share it)."""
+    graphdef, state = nnx.split(model)
+    features, boxes, K, present = map(jnp.asarray, (features, boxes, K, present))
+    parts = []
+    for first in range(0, len(features), SCENE_BATCH):
+        size = min(SCENE_BATCH, len(features) - first)
+        pad = lambda x, fill=None: jnp.concatenate(  # noqa: E731  (repeat the batch's first scene, or fill)
+            [x[first:first + size], jnp.repeat(x[first:first + 1] if fill is None else jnp.full_like(
+                x[first:first + 1], fill), SCENE_BATCH - size, axis=0)])
+        outputs = _observe_and_roll_out(graphdef, state, body, observed, horizon, pad(features), pad(boxes), pad(K),
+                                        pad(present, False))
+        parts.append(jax.tree.map(lambda x: x[:size], outputs))
+    return jax.tree.map(lambda *x: jnp.concatenate(x), *parts)
+
+
 def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], features: np.ndarray,
-                    frames: Frames, config: EvalConfig, batch_size: int = 16) -> dict[str, object]:
+                    frames: Frames, config: EvalConfig) -> dict[str, object]:
     """Every test sample's per-frame metrics for each of ``models`` (name -> :class:`~dynamics.PHDT` or
     :class:`~dynamics.JAT`) and ZeroMotion, which repeats the last frame of the first model's conditioning.
 
@@ -112,71 +146,42 @@ def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], 
         raise ValueError(f"no video is {config.length} frames long")
     T = config.observed
     first = PHDT_RECEPTIVE_FIELD - 1
-    columns = (features, without_crops(frames))
-
-    def scored(params, root, rows):
-        return frame_metrics(body, params, root, rows, config.pck_alpha)
+    window_features, rows = jax.tree.map(lambda column: column[scenes], (features, without_crops(frames)))
+    past = jax.tree.map(lambda x: x[:, :, first:T], rows)
+    future = jax.tree.map(lambda x: x[:, :, T:], rows)
 
     def depths(params, root):
         return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
 
-    def evaluate(model):
-        graphdef, state = nnx.split(model)
-
-        @jax.jit
-        def run(state, features, rows, present):
-            model = nnx.merge(graphdef, state)
-            past = jax.tree.map(lambda x: x[:, :, :T], rows)
-            observed = model.observe(body, features[:, :, :T], past.boxes, past.K, present)
-            rollout = model.rollout(body, observed, config.horizon, present)
-            future = jax.tree.map(lambda x: x[:, :, T:], rows)
-            tail = jax.tree.map(lambda x: x[:, :, first:], observed)
-            return (scored(tail.params, tail.root, jax.tree.map(lambda x: x[:, :, first:], past)),
-                    scored(rollout.params, rollout.root, future), depths(rollout.params, rollout.root),
-                    jax.tree.map(lambda x: x[:, :, -1:], observed))
-        return lambda features, rows, present: run(state, features, rows, present)
+    @jax.jit
+    def score(seen: Observation, rollout: Rollout, past: Frames, future: Frames):
+        tail = jax.tree.map(lambda x: x[:, :, first:], seen)
+        return (frame_metrics(body, tail.params, tail.root, past, config.pck_alpha),
+                frame_metrics(body, rollout.params, rollout.root, future, config.pck_alpha),
+                depths(rollout.params, rollout.root))
 
     @jax.jit
-    def zero(last, rows):
-        repeated = zero_motion(last, config.horizon)
-        return scored(repeated.params, repeated.root, rows), depths(repeated.params, repeated.root)
-
-    @jax.jit
-    def truth(rows):
+    def truth(rows: Frames):
         params = SMPLParams(geometry.matrix_to_rotation_6d(rows.rotations), rows.betas, jnp.zeros_like(rows.root))
         return depths(params, rows.root)
 
-    runners = {name: evaluate(model) for name, model in models.items()}
-    conditioning, prediction, penetration = ({name: [] for name in [*models, "ZeroMotion"]} for _ in range(3))
-    penetration["ground truth"] = []
-    for start in range(0, len(scenes), batch_size):
-        chunk = scenes[start: start + batch_size]
-        chunk_present = jnp.asarray(present[start: start + batch_size])
-        padded = np.concatenate([chunk, np.repeat(chunk[:1], batch_size - len(chunk), axis=0)])
-        window_features, rows = jax.tree.map(lambda column: column[padded], columns)
-        window_features = jnp.asarray(window_features)
-        padded_present = jnp.concatenate([chunk_present, jnp.zeros((batch_size - len(chunk), 2), bool)])
-        future = jax.tree.map(lambda x: x[:, :, T:], rows)
-        keep = lambda tree: jax.tree.map(lambda x: np.asarray(x)[: len(chunk)], tree)  # noqa: E731
-        for index, (name, run) in enumerate(runners.items()):
-            past_scores, future_scores, depth, last = run(window_features, rows, padded_present)
-            conditioning[name].append(keep(past_scores))
-            prediction[name].append(keep(future_scores))
-            penetration[name].append(keep(depth))
-            if index == 0:  # ZeroMotion repeats the first model's last observed frame and shares its conditioning
-                zero_scores, zero_depth = zero(last, future)
-                conditioning["ZeroMotion"].append(keep(past_scores))
-                prediction["ZeroMotion"].append(keep(zero_scores))
-                penetration["ZeroMotion"].append(keep(zero_depth))
-        penetration["ground truth"].append(keep(truth(future)))
+    conditioning, prediction, penetration = {}, {}, {}
+    for index, (name, model) in enumerate(models.items()):
+        seen, rollout = forecast_scenes(model, body, window_features, rows.boxes, rows.K, present, T,
+                                        config.horizon)
+        conditioning[name], prediction[name], penetration[name] = score(seen, rollout, past, future)
+        if index == 0:  # ZeroMotion repeats the first model's last observed frame and shares its conditioning
+            _, prediction["ZeroMotion"], penetration["ZeroMotion"] = score(seen, zero_motion(seen, config.horizon),
+                                                                           past, future)
+            conditioning["ZeroMotion"] = conditioning[name]
+    penetration["ground truth"] = truth(future)
     samples = present.reshape(-1)
-    flatten = lambda x: x.reshape(-1, *x.shape[2:])[samples]  # noqa: E731  (present (window, person) pairs)
-    merge = lambda parts: jax.tree.map(lambda *p: flatten(np.concatenate(p)), *parts)  # noqa: E731
+    flatten = lambda x: np.asarray(x).reshape(-1, *x.shape[2:])[samples]  # noqa: E731  (present (window, person))
     two_person = np.repeat(present.sum(axis=1) > 1, present.shape[1])[samples]
     return {"two_person": two_person,
-            "conditioning": {name: merge(parts) for name, parts in conditioning.items()},
-            "prediction": {name: merge(parts) for name, parts in prediction.items()},
-            "penetration": {name: merge(parts) for name, parts in penetration.items()}}
+            "conditioning": jax.tree.map(flatten, conditioning),
+            "prediction": jax.tree.map(flatten, prediction),
+            "penetration": jax.tree.map(flatten, penetration)}
 
 
 def summarise(windows: Mapping[str, object]) -> dict[str, dict]:

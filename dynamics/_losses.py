@@ -17,7 +17,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
+from jaxtyping import Array, Float, Int
 
 import geometry
 
@@ -25,8 +26,8 @@ from ._hmr import SMPLParams
 from ._phdt import params_to_joints
 from ._prior import PosePrior, lsgan_generator_loss
 
-__all__ = ["PENETRATION_POINTS", "FrameTargets", "LossWeights", "frame_losses", "interpenetration", "penetration_depths",
-           "shape_consistency"]
+__all__ = ["PENETRATION_POINTS", "FrameTargets", "LossWeights", "PenetrationSurfaces", "frame_losses",
+           "interpenetration", "penetration_depths", "penetration_surfaces", "shape_consistency"]
 
 PENETRATION_POINTS = 128
 """Vertices sampled from each mesh for the interpenetration terms (:func:`geometry.surface_points`)."""
@@ -92,14 +93,30 @@ def shape_consistency(betas: Float[Array, "*b T S"], weights: LossWeights) -> Ar
     return weights.shape_consistency * jnp.mean(jnp.sum((betas[..., 1:, :] - betas[..., :-1, :]) ** 2, axis=-1))
 
 
-def penetration_depths(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"]
-                       ) -> Float[Array, "*b N T V"]:
+class PenetrationSurfaces(NamedTuple):
+    """What the interpenetration terms take from a body model (:func:`penetration_surfaces`)."""
+
+    capsules: geometry.Capsules
+    vertices: Int[np.ndarray, "V"]
+    """The sampled template vertices (:data:`PENETRATION_POINTS` of them)."""
+
+
+def penetration_surfaces(body: geometry.BodyModel) -> PenetrationSurfaces:
+    """The bone capsules and sampled vertices of a concrete ``body`` (NumPy: close over them in a jitted loss that
+    takes the body model as an argument)."""
+    return PenetrationSurfaces(geometry.body_capsules(body), geometry.surface_points(body, PENETRATION_POINTS))
+
+
+def penetration_depths(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"],
+                       surfaces: PenetrationSurfaces | None = None) -> Float[Array, "*b N T V"]:
     """How deep (metres) each of :data:`PENETRATION_POINTS` sampled vertices of each person lies inside the other
     people of its scene (``N`` people, axis -3), summed over them: ``sum_{n != o} rho^n(v)`` for ``v`` of person
-    ``o`` (Eq. 4.41), each body the union of its bone capsules (:func:`geometry.body_capsules`)."""
-    with jax.ensure_compile_time_eval():  # constants of the body model, also when traced inside a jitted loss
-        capsules = geometry.body_capsules(body)
-        vertices = geometry.surface_points(body, PENETRATION_POINTS)
+    ``o`` (Eq. 4.41), each body the union of its bone capsules (:func:`geometry.body_capsules`). ``surfaces``:
+    :func:`penetration_surfaces` of ``body``, needed when ``body`` is traced (an argument of a jitted function)."""
+    if surfaces is None:
+        with jax.ensure_compile_time_eval():  # constants of a body model closed over
+            surfaces = penetration_surfaces(body)
+    capsules, vertices = surfaces
     rotations = geometry.rotation_6d_to_matrix(params.rot6d)
     batch = rotations.shape[:-3]
     flat_rotations, flat_betas = rotations.reshape(-1, 24, 3, 3), params.betas.reshape(-1, params.betas.shape[-1])
@@ -119,8 +136,8 @@ def penetration_depths(body: geometry.BodyModel, params: SMPLParams, root: Float
     return total.reshape(points.shape[:-1])
 
 
-def interpenetration(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"]
-                     ) -> Float[Array, "*b T"]:
+def interpenetration(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"],
+                     surfaces: PenetrationSurfaces | None = None) -> Float[Array, "*b T"]:
     """``P_t`` of Eq. 4.42 for each scene and frame: the depths of :func:`penetration_depths` summed over the
     sampled vertices of every person (metres)."""
-    return jnp.sum(penetration_depths(body, params, root), axis=(-3, -1))
+    return jnp.sum(penetration_depths(body, params, root, surfaces), axis=(-3, -1))

@@ -93,15 +93,13 @@ def pose_frames(sources: Sequence[str | os.PathLike], body: geometry.BodyModel, 
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return PoseFrames(**{name: stored[name] for name in PoseFrames._fields})
-    pose = jax.jit(jax.vmap(geometry.body_joints, in_axes=(None, 0, None, 0)))
     columns, track = [], 0
     for video, source in enumerate(tqdm.tqdm(sources, desc="pose frames", disable=not progress)):
         motion = mocap.retarget_clip(mocap.load_clip_file(source, fps=fps), body)
         for person in range(motion.num_people):
             rotations = motion.rotations[person].astype(np.float32)
             betas = np.broadcast_to(motion.betas[person], (len(rotations), body.num_shapes)).astype(np.float32)
-            joints = np.asarray(pose(body, rotations, betas[0], motion.translation[person].astype(np.float32)),
-                                np.float32)
+            joints = _posed(body, rotations, betas[0], motion.translation[person].astype(np.float32))
             ids = [np.full(len(rotations), value, np.int32) for value in (track, video, person)]
             columns.append(PoseFrames(rotations, betas, joints, *ids, np.arange(len(rotations), dtype=np.int32)))
             track += 1
@@ -109,6 +107,27 @@ def pose_frames(sources: Sequence[str | os.PathLike], body: geometry.BodyModel, 
     if path is not None:
         training.write_atomically(path, lambda file: np.savez(file, **frames._asdict()))
     return frames
+
+
+_POSE_CHUNK = 256
+"""Frames posed per call of the jitted kernel (the last chunk padded): one compilation serves every recording."""
+
+
+@jax.jit
+def _pose_chunk(body, rotations, betas, translation):
+    return jax.vmap(geometry.body_joints, in_axes=(None, 0, None, 0))(body, rotations, betas, translation)
+
+
+def _posed(body: geometry.BodyModel, rotations: np.ndarray, betas: np.ndarray, translation: np.ndarray
+           ) -> np.ndarray:
+    """The joints ``(F, 24, 3)`` of one person's frames (float32)."""
+    chunks = []
+    for first in range(0, len(rotations), _POSE_CHUNK):
+        size = min(_POSE_CHUNK, len(rotations) - first)
+        pad = lambda x: np.concatenate([x[first:first + size],  # noqa: E731
+                                        np.repeat(x[first:first + 1], _POSE_CHUNK - size, 0)])
+        chunks.append(np.asarray(_pose_chunk(body, pad(rotations), betas, pad(translation)), np.float32)[:size])
+    return np.concatenate(chunks)
 
 
 def mirror_frames(frames: PoseFrames, body: geometry.BodyModel) -> PoseFrames:

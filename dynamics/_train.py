@@ -178,9 +178,10 @@ def _movie_objective(config: TrainConfig, body, model: PHDT, batch: tuple[jax.Ar
     return _total(terms), terms, params
 
 
-def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, prior):
+def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, prior, surfaces=None):
     """Eq. 4.12, and Eq. 4.44's interpenetration term when the batch holds scenes of several people: features
-    ``(B, T + H, D)`` (tracks) or ``(B, N, T + H, D)`` (scenes), ``rows`` alike."""
+    ``(B, T + H, D)`` (tracks) or ``(B, N, T + H, D)`` (scenes), ``rows`` alike; ``surfaces``: the body's
+    :func:`~dynamics.penetration_surfaces` (the body model is traced here), for scenes."""
     features, rows = batch
     T, H = config.observed, config.horizon
     frames = lambda tree, start, stop: jax.tree.map(  # noqa: E731  (the frame axis follows the batch axes)
@@ -205,7 +206,7 @@ def _ar_objective(config, body, model, batch: tuple[jax.Array, Frames], key, pri
     terms["shape_consistency"] = shape_consistency(rollout.params.betas, config.losses)
     if features.ndim == 4 and features.shape[1] > 1 and config.losses.interpenetration:
         terms["interpenetration"] = config.losses.interpenetration * jnp.mean(
-            interpenetration(body, rollout.params, rollout.root))
+            interpenetration(body, rollout.params, rollout.root, surfaces))
     return _total(terms), terms, rollout.params
 
 

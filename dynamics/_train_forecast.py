@@ -14,6 +14,15 @@ on the predicted pelvis against the true one) plus ``L_t`` of ``f_HMR`` decoding
 Validation (every choice of the study is made on it) is one training file of each action kept out of training:
 :func:`forecast_split`. :data:`FORECASTERS` are trained from one seed with the same steps and data; "JAT w/o
 bias" differs from "JAT" only by the bias (same initial parameters for every part they share).
+
+Scenes of two people (:attr:`ForecastTrainConfig.people`): the windows hold both people of a recording captured
+together over the same frames (:func:`scene_rows`), in the frame of either (drawn per window), and the objective
+adds Eq. 4.42's interpenetration term ``P_t`` on the predicted frames. :data:`PAIR_FORECASTERS` (JAT, MPJAT and
+MPJAT without that term, Table 5.9's ablation) are fine-tuned so from one trained single-person JAT
+(:attr:`ForecastTrainConfig.start_from`; MPJAT's agent-aware parts start as copies of their single-person
+counterparts, :func:`~dynamics.as_multi_person`, as the video MPJAT does), on the first salsa pair; with no other
+pair to validate on, the last part of every training recording validates
+(:attr:`ForecastTrainConfig.validation_tail`).
 """
 
 from __future__ import annotations
@@ -33,17 +42,19 @@ import geometry
 import mocap
 import training
 
-from ._data import gather_windows, window_starts
+from ._data import scene_windows, window_starts
 from ._forecast import ForecasterConfig, PoseForecaster, forecast_joints
 from ._hmr import decoding_start
 from ._jat import JATConfig
-from ._losses import FrameTargets, LossWeights, frame_losses
+from ._losses import FrameTargets, LossWeights, frame_losses, interpenetration, penetration_surfaces
 from ._phdt import PHDTConfig
 from ._poses import FORECAST_FPS, PoseFrames, canonical_window, mirror_frames, pose_frames
 from ._train import StageConfig, _run_stage
+from ._train_jat import as_multi_person
 
-__all__ = ["FORECASTERS", "ForecastTrainConfig", "canonical_windows", "forecast_split", "initial_forecaster",
-           "load_forecasters", "train_forecaster", "train_forecasters"]
+__all__ = ["FORECASTERS", "PAIR_FORECASTERS", "ForecastTrainConfig", "canonical_scenes", "forecast_split",
+           "initial_forecaster", "load_forecaster", "load_forecasters", "pair_split", "scene_rows", "train_forecaster",
+           "train_forecasters", "train_pair_forecasters"]
 
 # Each predicted frame decoded from the previous one moved on by half its last step: chosen on the validation files
 # (docs/dynamics.md) over the previous pose as it is and over the whole step.
@@ -58,6 +69,17 @@ FORECASTERS: dict[str, ForecasterConfig] = {
     "JAT w/o bias": ForecasterConfig(jat=dataclasses.replace(_SMALL_JAT, joint_aware_bias=False)),
 }
 """The trained 3D forecasters, as the tables name them (CPU-sized: a few hundred thousand parameters each)."""
+_MPJAT = ForecasterConfig(jat=dataclasses.replace(_SMALL_JAT, agent_aware=True))
+PAIR_FORECASTERS: dict[str, tuple[ForecasterConfig, float]] = {
+    "JAT": (FORECASTERS["JAT"], 1.0),
+    "MPJAT": (_MPJAT, 1.0),
+    "MPJAT w/o interpenetration": (_MPJAT, 0.0),
+}
+"""The two-person forecasters as the tables name them: each model and the weight of its interpenetration term."""
+PAIR_TRAINING = ("60_03_scaled.bvh", "61_03_scaled.bvh")
+PAIR_TEST = ("60_05_scaled.bvh", "61_05_scaled.bvh")
+"""The CMU salsa pairs (``<data-root>/cmu_mocap``): the first trains (and validates), the second is the test pair,
+as for the video models (:data:`~dynamics.TEST_MULTI_PERSON_CLIPS`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,8 +87,10 @@ class ForecastTrainConfig:
     """Everything that determines one forecaster's training (written to ``config.json``)."""
 
     files: tuple[str, ...]
-    """Training motion files (CMU-Mocap exp-map ``.txt``; the benchmark's test split is refused)."""
-    validation_files: tuple[str, ...]
+    """Training motion files (CMU-Mocap exp-map ``.txt``; the benchmark's test split is refused), or the files of
+    people captured together joined by ``+``."""
+    validation_files: tuple[str, ...] = ()
+    """Validation motion files; none when :attr:`validation_tail` validates."""
     model: ForecasterConfig = FORECASTERS["JAT"]
     losses: LossWeights = LossWeights()
     stage: StageConfig = StageConfig(steps=1000, batch_size=32, learning_rate=5e-4, warmup_steps=50)
@@ -80,6 +104,15 @@ class ForecastTrainConfig:
     of windows per speed. Validation is at speed 1."""
     mirror: bool = True
     """Also train on the mirrored motion (:func:`~dynamics.mirror_frames`: left and right swapped), an augmentation."""
+    people: int = 1
+    """People per training scene: 1, every person's motion on its own; 2, the two people of a recording captured
+    together (the files are pairs joined by ``+``), each window in the frame of either."""
+    validation_tail: float = 0.0
+    """The last fraction of every training recording validates instead of training (no training window reaches
+    into it); 0: :attr:`validation_files` validate."""
+    start_from: str | None = None
+    """A trained single-person JAT forecaster's folder: the model starts from its weights (module docstring) instead
+    of :func:`initial_forecaster`'s."""
     seed: int = 0
     checkpoint_interval: int = 250
     validation_interval: int = 250
@@ -88,8 +121,15 @@ class ForecastTrainConfig:
     """Where the retargeted motion is cached; None: ``<workdir>/data_cache``."""
 
     def __post_init__(self) -> None:
-        if not self.files or not self.validation_files:
-            raise ValueError("need training and validation files")
+        if not self.files:
+            raise ValueError("need training files")
+        if bool(self.validation_files) == (self.validation_tail > 0):
+            raise ValueError("validate on validation files or on a validation tail of the training files: give "
+                             "exactly one")
+        if not 0.0 <= self.validation_tail < 1.0:
+            raise ValueError(f"validation_tail is a fraction in [0, 1), got {self.validation_tail}")
+        if self.people not in (1, 2):
+            raise ValueError(f"people must be 1 or 2, got {self.people}")
         held_out = [f for f in self.files + self.validation_files if mocap.cmu_expmap_split(f) == "test"]
         if held_out:
             raise ValueError(f"{held_out[0]} is in the benchmark's test split: it never enters training or validation")
@@ -113,23 +153,53 @@ def forecast_split(data_root: str | os.PathLike | None = None) -> tuple[tuple[st
     return tuple(str(f) for f in files if f not in last), tuple(str(f) for f in files if f in last)
 
 
+def pair_split(data_root: str | os.PathLike | None = None) -> tuple[str, str]:
+    """The training and the test salsa pair (:data:`PAIR_TRAINING`, :data:`PAIR_TEST`) as sources of
+    :func:`~dynamics.pose_frames`: each pair's two files joined by ``+``."""
+    root = mocap.find_data_root(data_root, "cmu_mocap")
+    if root is None:
+        raise ValueError("no data folder holds cmu_mocap/ (the CMU salsa pairs): pass --data-root")
+    return tuple("+".join(str(root / "cmu_mocap" / name) for name in pair) for pair in (PAIR_TRAINING, PAIR_TEST))
+
+
+def scene_rows(frames: PoseFrames, length: int, people: int = 1, stride: int = 1) -> np.ndarray:
+    """The rows ``(W, people, length)`` of every window of ``length`` frames, every ``stride`` frames: each
+    person's own (``people=1``) or every recording's ``people`` people over the same frames (recordings of fewer
+    people give none)."""
+    if people == 1:
+        return window_starts(frames, length, stride)[:, None, None] + np.arange(length)
+    scenes, present = scene_windows(frames, length, stride, people)
+    return scenes[present.all(axis=1)]
+
+
 @partial(jax.jit, static_argnums=2)
 def _canonical(rotations, joints, last_observed: int):
     return jax.vmap(canonical_window, in_axes=(0, 0, None))(rotations, joints, last_observed)
 
 
-def canonical_windows(frames: PoseFrames, starts: np.ndarray, length: int, observed: int) -> PoseFrames:
-    """The single-person windows of ``length`` frames at ``starts`` in their last observed frame's virtual camera
-    frame (:func:`~dynamics.canonical_window`): every array ``(W, 1 person, length, ...)``."""
-    windows = jax.tree.map(lambda column: column[:, None], gather_windows(frames, starts, length))
+def canonical_scenes(frames: PoseFrames, rows: np.ndarray, observed: int) -> PoseFrames:
+    """The windows of ``rows`` (:func:`scene_rows`) in the virtual camera frame of their first person's last observed
+    frame (:func:`~dynamics.canonical_window`): every array ``(W, people, length, ...)``."""
+    windows = jax.tree.map(lambda column: column[rows], frames)
     rotations, joints = _canonical(jnp.asarray(windows.rotations), jnp.asarray(windows.joints3d), observed - 1)
     return windows._replace(rotations=np.asarray(rotations), joints3d=np.asarray(joints))
 
 
+def _split_tail(frames: PoseFrames, fraction: float) -> tuple[PoseFrames, PoseFrames]:
+    """The rows of every recording before its last ``fraction`` of frames, and those in it."""
+    length = np.zeros(frames.video.max() + 1, np.int64)
+    np.maximum.at(length, frames.video, frames.frame + 1)
+    early = frames.frame < np.floor((1.0 - fraction) * length[frames.video])
+    return PoseFrames(*(column[early] for column in frames)), PoseFrames(*(column[~early] for column in frames))
+
+
 def _joined(parts: list[PoseFrames]) -> PoseFrames:
-    """The rows of ``parts`` one after the other, each part's tracks numbered after the previous parts'."""
-    offsets = np.cumsum([0] + [int(part.track.max()) + 1 for part in parts[:-1]])
-    parts = [part._replace(track=part.track + offset) for part, offset in zip(parts, offsets)]
+    """The rows of ``parts`` one after the other, each part's tracks and recordings numbered after the previous
+    parts'."""
+    offsets = lambda column: np.cumsum(  # noqa: E731
+        [0] + [int(getattr(part, column).max()) + 1 for part in parts[:-1]])
+    parts = [part._replace(track=part.track + track, video=part.video + video)
+             for part, track, video in zip(parts, offsets("track"), offsets("video"))]
     return PoseFrames(*(np.concatenate(column) for column in zip(*parts)))
 
 
@@ -137,7 +207,8 @@ def _targets(rows: PoseFrames) -> FrameTargets:
     return FrameTargets(rows.rotations, rows.betas, rows.joints3d, None, None, None)
 
 
-def _forecast_objective(config: ForecastTrainConfig, body, model: PoseForecaster, rows: PoseFrames, key, prior):
+def _forecast_objective(config: ForecastTrainConfig, body, model: PoseForecaster, rows: PoseFrames, key, prior,
+                        surfaces=None):
     T, H = config.observed, config.horizon
     frames = lambda start, stop: jax.tree.map(lambda x: x[:, :, start:stop], rows)  # noqa: E731
     past, future = frames(0, T), frames(T, T + H)
@@ -156,6 +227,9 @@ def _forecast_objective(config: ForecastTrainConfig, body, model: PoseForecaster
     terms |= {f"observed_{name}": value for name, value in decoded.items()}
     terms["translation"] = config.losses.translation * jnp.mean(
         jnp.sum((rollout.root - future.joints3d[..., 0, :]) ** 2, axis=-1))
+    if config.people > 1 and config.losses.interpenetration:
+        terms["interpenetration"] = config.losses.interpenetration * jnp.mean(
+            interpenetration(body, rollout.params, rollout.root, surfaces))
     return sum(terms.values()), terms, rollout.params
 
 
@@ -168,9 +242,20 @@ def _future_errors(body, model: PoseForecaster, rows: PoseFrames, observed: int)
     return {"val_future_mpjpe_mm": 1000.0 * jnp.mean(error), "val_future_root_mm": 1000.0 * jnp.mean(root)}
 
 
-def initial_forecaster(config: ForecasterConfig, seed: int) -> PoseForecaster:
+def initial_forecaster(config: ForecasterConfig, seed: int, start_from: str | Path | None = None) -> PoseForecaster:
     """The parameters a forecaster starts from: those of JAT (with the bias) from ``seed`` for every part the
-    config shares with it, so that an ablation differs from JAT only in what it removes; the rest from ``seed``."""
+    config shares with it, so that an ablation differs from JAT only in what it removes; the rest from ``seed``.
+    ``start_from``: a trained JAT forecaster's folder whose weights start the model instead (a JAT of the same
+    sizes; an agent-aware model's agent-aware parts copied from their single-person counterparts)."""
+    if start_from is not None:
+        source = load_forecaster(Path(start_from))
+        if config.jat is None or source.config.jat is None or dataclasses.replace(
+                source.config.jat, agent_aware=config.jat.agent_aware) != config.jat:
+            raise ValueError(f"{start_from} holds {source.config}, not a JAT that {config} can start from")
+        model = PoseForecaster(config, rngs=nnx.Rngs(seed))
+        model.pose_encoder = source.pose_encoder
+        model.model = as_multi_person(source.model, config.jat) if config.jat.agent_aware else source.model
+        return model
     model = PoseForecaster(config, rngs=nnx.Rngs(seed))
     if config.jat is not None and config.jat != FORECASTERS["JAT"].jat:
         reference = PoseForecaster(dataclasses.replace(config, jat=dataclasses.replace(
@@ -188,18 +273,29 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     length = config.observed + config.horizon
-    frames = _joined([pose_frames(config.files, body, config.fps / speed, cache_dir, progress)
-                      for speed in config.speeds])
+    parts = [pose_frames(config.files, body, config.fps / speed, cache_dir, progress) for speed in config.speeds]
+    if config.validation_tail:
+        validation = _split_tail(pose_frames(config.files, body, config.fps, cache_dir, progress),
+                                 config.validation_tail)[1]
+        parts = [_split_tail(part, config.validation_tail)[0] for part in parts]
+    else:
+        validation = pose_frames(config.validation_files, body, config.fps, cache_dir, progress)
+    frames = _joined(parts)
     if config.mirror:
         frames = _joined([frames, mirror_frames(frames, body)])
-    validation = pose_frames(config.validation_files, body, config.fps, cache_dir, progress)
-    starts = window_starts(frames, length)
-    validation_windows = canonical_windows(validation, window_starts(validation, length, stride=10), length,
-                                           config.observed)
+    rows = scene_rows(frames, length, config.people)
+    validation_rows = scene_rows(validation, length, config.people, stride=10)
+    if len(rows) == 0 or len(validation_rows) == 0:
+        raise ValueError(f"the {'validation' if len(rows) else 'training'} motion has no window of {length} frames"
+                         + (f" with {config.people} people" if config.people > 1 else ""))
+    validation_windows = canonical_scenes(validation, validation_rows, config.observed)
 
     def sample(key: jax.Array) -> PoseFrames:
-        chosen = starts[np.asarray(jax.random.randint(key, (config.stage.batch_size,), 0, len(starts)))]
-        return canonical_windows(frames, chosen, length, config.observed)
+        chosen = rows[np.asarray(jax.random.randint(key, (config.stage.batch_size,), 0, len(rows)))]
+        if config.people > 1:  # each window in the frame of a person drawn from its people
+            first = np.asarray(jax.random.randint(jax.random.fold_in(key, 1), (len(chosen),), 0, config.people))
+            chosen = np.stack([np.roll(scene, -shift, axis=0) for scene, shift in zip(chosen, first)])
+        return canonical_scenes(frames, chosen, config.observed)
 
     @nnx.jit
     def errors(model, rows):
@@ -208,9 +304,12 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
     def validate(model: PoseForecaster) -> dict[str, float]:
         return {name: float(value) for name, value in errors(model, validation_windows).items()}
 
-    model = initial_forecaster(config.model, config.seed)
-    model = _run_stage("forecast", config, config.stage, workdir, model, nnx.Param, _forecast_objective, sample,
-                       validate, body, resume=resume, log=log, progress=progress)
+    model = initial_forecaster(config.model, config.seed, config.start_from)
+    objective = _forecast_objective
+    if config.people > 1:  # the interpenetration term's body constants, closed over (the step traces the body)
+        objective = partial(_forecast_objective, surfaces=penetration_surfaces(body))
+    model = _run_stage("forecast", config, config.stage, workdir, model, nnx.Param, objective, sample, validate,
+                       body, resume=resume, log=log, progress=progress)
     training.save_model(workdir / "model", config.model, nnx.state(model))
     return model
 
@@ -222,16 +321,39 @@ def train_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: ge
     """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced, with
     ``model_changes`` to its model's config, e.g. ``decode_from``), in ``workdir/<name>/``, the data cached once for
     all; the models are copied to ``workdir/models/<name>``."""
-    workdir = Path(workdir)
-    if config.cache_dir is None:
-        config = dataclasses.replace(config, cache_dir=str((workdir / "data_cache").resolve()))
-    models = {}
+    changes = model_changes or {}
+    return _train_table(config, workdir, body, {name: dataclasses.replace(
+        config, model=FORECASTERS[name].replace_model(**changes)) for name in names}, resume, log, progress)
+
+
+def train_pair_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
+                           resume: bool, names: Iterable[str] = tuple(PAIR_FORECASTERS),
+                           log: Callable[[dict], None] = lambda record: None, progress: bool = True
+                           ) -> dict[str, PoseForecaster]:
+    """Each of :data:`PAIR_FORECASTERS` named in ``names`` trained as ``config`` says (two people per scene; its
+    ``model`` and interpenetration weight replaced), as :func:`train_forecasters` does."""
+    if config.people != 2 or config.start_from is None:
+        raise ValueError("the pair forecasters train on scenes of two people from a trained JAT: set people=2 and "
+                         "start_from")
+    runs = {}
     for name in names:
-        model = FORECASTERS[name].replace_model(**(model_changes or {}))
-        models[name] = train_forecaster(dataclasses.replace(config, model=model), workdir / _folder(name), body,
+        model, weight = PAIR_FORECASTERS[name]
+        runs[name] = dataclasses.replace(config, model=model, losses=dataclasses.replace(
+            config.losses, interpenetration=weight))
+    return _train_table(config, workdir, body, runs, resume, log, progress)
+
+
+def _train_table(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel,
+                 runs: Mapping[str, ForecastTrainConfig], resume: bool, log: Callable[[dict], None],
+                 progress: bool) -> dict[str, PoseForecaster]:
+    workdir = Path(workdir)
+    cache_dir = config.cache_dir or str((workdir / "data_cache").resolve())
+    models = {}
+    for name, run in runs.items():
+        models[name] = train_forecaster(dataclasses.replace(run, cache_dir=cache_dir), workdir / _folder(name), body,
                                         resume=resume, log=lambda record, name=name: log({"model": name, **record}),
                                         progress=progress)
-        training.save_model(workdir / "models" / _folder(name), model, nnx.state(models[name]))
+        training.save_model(workdir / "models" / _folder(name), run.model, nnx.state(models[name]))
     return models
 
 
@@ -239,11 +361,17 @@ def _folder(name: str) -> str:
     return name.lower().replace(" w/o ", "_without_").replace("+", "").replace(" ", "_")
 
 
-def load_forecasters(path: str | Path) -> dict[str, PoseForecaster]:
-    """The models :func:`train_forecasters` wrote to ``<workdir>/models`` (or a shipped copy), by table name: those
-    of :data:`FORECASTERS` whose folder exists."""
-    folders = {name: Path(path) / _folder(name) for name in FORECASTERS}
+def load_forecaster(folder: str | Path) -> PoseForecaster:
+    """One forecaster's folder (``config.json`` and ``state.npz``) as a model."""
+    build = lambda fields: PoseForecaster(ForecasterConfig.from_fields(fields), rngs=nnx.Rngs(0))  # noqa: E731
+    return training.load_model_state(folder, build)
+
+
+def load_forecasters(path: str | Path, names: Iterable[str] = tuple(FORECASTERS)) -> dict[str, PoseForecaster]:
+    """The models :func:`train_forecasters` (or :func:`train_pair_forecasters`, with ``names`` of
+    :data:`PAIR_FORECASTERS`) wrote to ``<workdir>/models`` (or a shipped copy), by table name: those of ``names``
+    whose folder exists."""
+    folders = {name: Path(path) / _folder(name) for name in names}
     if not any(folder.is_dir() for folder in folders.values()):
         raise FileNotFoundError(f"{path} holds none of the forecasters {[f.name for f in folders.values()]}")
-    build = lambda fields: PoseForecaster(ForecasterConfig.from_fields(fields), rngs=nnx.Rngs(0))  # noqa: E731
-    return {name: training.load_model_state(folder, build) for name, folder in folders.items() if folder.is_dir()}
+    return {name: load_forecaster(folder) for name, folder in folders.items() if folder.is_dir()}

@@ -22,6 +22,7 @@ with that loss's weight at 0.
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,7 +38,7 @@ from ._backbone import ResNetBackbone
 from ._data import (DataConfig, Frames, build_frames, check_validation_apart, scene_windows, window_starts,
                     without_crops)
 from ._jat import JAT, JATConfig
-from ._losses import LossWeights, frame_losses, interpenetration, shape_consistency
+from ._losses import LossWeights, frame_losses, interpenetration, penetration_surfaces, shape_consistency
 from ._phdt import crop_roots, params_to_joints
 from ._train import StageConfig, _ar_objective, _run_stage, _targets, cached_features
 
@@ -109,7 +110,7 @@ def as_multi_person(model: JAT, config: JATConfig) -> JAT:
 
 
 def _scene_movie_objective(config: TransformerTrainConfig, body, model: JAT, batch: tuple[jax.Array, Frames], key,
-                           prior):
+                           prior, surfaces=None):
     features, rows = batch
     present = jnp.ones(features.shape[:-2], bool)
     params = model.hmr(model.condition(features, rows.boxes, rows.K, present), key=key)
@@ -117,7 +118,8 @@ def _scene_movie_objective(config: TransformerTrainConfig, body, model: JAT, bat
     terms = frame_losses(body, params, roots, _targets(rows), prior, config.losses)
     terms["shape_consistency"] = shape_consistency(params.betas, config.losses)
     if features.shape[-3] > 1 and config.losses.interpenetration:
-        terms["interpenetration"] = config.losses.interpenetration * jnp.mean(interpenetration(body, params, roots))
+        terms["interpenetration"] = config.losses.interpenetration * jnp.mean(
+            interpenetration(body, params, roots, surfaces))
     return sum(terms.values()), terms, params
 
 
@@ -187,10 +189,15 @@ def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body:
     model = JAT(config.model, rngs=nnx.Rngs(config.seed))
     if init is not None:
         nnx.update(model, nnx.state(init, nnx.Param))
+    movie_objective, ar_objective = _scene_movie_objective, _ar_objective
+    if config.model.agent_aware:  # scenes of two people: the interpenetration term's body constants, closed over
+        surfaces = penetration_surfaces(body)
+        movie_objective, ar_objective = (partial(objective, surfaces=surfaces)
+                                         for objective in (_scene_movie_objective, _ar_objective))
     if config.movie is not None:
-        model = _run_stage("movie", config, config.movie, workdir, model, _CONDITIONING, _scene_movie_objective,
+        model = _run_stage("movie", config, config.movie, workdir, model, _CONDITIONING, movie_objective,
                            sampler(config.movie), validate, body, resume=resume, log=log, progress=progress)
-    model = _run_stage("ar", config, config.ar, workdir, model, _AR_PARTS, _ar_objective, sampler(config.ar),
+    model = _run_stage("ar", config, config.ar, workdir, model, _AR_PARTS, ar_objective, sampler(config.ar),
                        validate, body, resume=resume, log=log, progress=progress)
     training.save_model(workdir / "model", config.model, nnx.state(model))
     return model

@@ -11,6 +11,13 @@ action), where every choice is made. Without ``--train`` it evaluates the models
 rest of the train split (resumable: run the same command again after a kill), which is how the shipped ones were
 made. Writes OUT/results.json, results.md, forecast.png, log.jsonl and run.json, replacing OUT's previous outputs
 as a whole (``OUT/train`` is kept). Logic: :mod:`experiments.dynamics_study`.
+
+``--pairs``: scenes of two people, the CMU salsa pairs of ``<data-root>/cmu_mocap`` (``dynamics.pair_split``):
+JAT, MPJAT and MPJAT without the interpenetration loss (``dynamics.PAIR_FORECASTERS``, shipped in
+``dynamics/assets/forecasters/pairs``) and the single-person JAT they start from (``--start-from``), scored on the
+test pair 60_05+61_05 (``--split test``) or on the last 30 % of the training pair 60_03+61_03 (``--split
+validation``), with the interpenetration of every forecast. ``--train`` fine-tunes the three from ``--start-from``
+on the rest of the training pair.
 """
 
 from __future__ import annotations
@@ -21,12 +28,17 @@ from typing import Literal
 
 import geometry
 import mocap
-from dynamics import (FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig, forecast_split,
-                      load_forecasters, train_forecasters)
+from dynamics import (FORECASTERS, PAIR_FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, StageConfig,
+                      forecast_split, load_forecaster, load_forecasters, pair_split, train_forecasters,
+                      train_pair_forecasters)
 from experiments import _cli
 from experiments.dynamics_study import run_forecast_study
 
 QUICK_STRIDE = 25
+PAIR_TRAIN = dict(people=2, validation_tail=0.3, stage=StageConfig(steps=300, batch_size=16, learning_rate=1e-4,
+                                                                   warmup_steps=30),
+                  checkpoint_interval=50, validation_interval=50, log_interval=10)
+"""The pair forecasters' fine-tuning (``--pairs --train``): from a trained JAT, at a fifth of its learning rate."""
 QUICK_TRAIN = dict(stage=StageConfig(steps=10, batch_size=4, learning_rate=5e-4, warmup_steps=2), speeds=(1.0,),
                    checkpoint_interval=5, validation_interval=10, log_interval=5)
 
@@ -38,15 +50,19 @@ class Config:
     data_root: Path | None = None
     """Folder holding cmu_expmap/ (default: $MVMOCAP_DATA_ROOT)."""
     split: Literal["test", "validation"] = "test"
-    """test: the benchmark's test files; validation: one training file per action, never trained on."""
+    """test: the benchmark's test files; validation: one training file per action, never trained on (with --pairs:
+    the test pair; the training pair's last 30 %)."""
+    pairs: bool = False
+    """Scenes of two people: the salsa pairs and the pair forecasters (module docstring)."""
     train: bool = False
     """Train the three forecasters into OUT/train (resumable) instead of using the shipped ones."""
     train_steps: int | None = None
     """With --train: steps per model (default: dynamics.ForecastTrainConfig's 1000)."""
     train_batch: int | None = None
     """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
-    train_names: tuple[str, ...] = tuple(FORECASTERS)
-    """With --train: the forecasters to train and score (default: all of dynamics.FORECASTERS)."""
+    train_names: tuple[str, ...] | None = None
+    """With --train: the forecasters to train and score (default: all of dynamics.FORECASTERS, with --pairs of
+    dynamics.PAIR_FORECASTERS)."""
     train_speeds: tuple[float, ...] = ForecastTrainConfig.speeds
     """With --train: playback speeds of the training motion (augmentation; 1: as recorded)."""
     train_mirror: bool = ForecastTrainConfig.mirror
@@ -57,8 +73,11 @@ class Config:
     train_extrapolation: float | None = None
     """With --train: the fraction of its last step the previous pose is moved on by when decoding from the
     extrapolated pose, in [0, 1] (default: each forecaster's own)."""
-    model_dir: Path = SHIPPED_FORECASTERS
-    """Folder with the forecasters (default: the shipped dynamics/assets/forecasters)."""
+    model_dir: Path | None = None
+    """Folder with the forecasters (default: the shipped dynamics/assets/forecasters, with --pairs its pairs/)."""
+    start_from: Path = SHIPPED_FORECASTERS / "jat"
+    """With --pairs: the single-person JAT the pair forecasters start from (--train) and that is scored beside
+    them."""
     quick: bool = False
     """Windows every 25 frames instead of every 10; with --train, 10 steps per model on the motion at its recorded
     speed (a smoke run)."""
@@ -70,8 +89,15 @@ class Config:
     def __post_init__(self) -> None:
         if mocap.find_data_root(self.data_root, "cmu_expmap") is None:
             raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_expmap/)")
-        if not self.train and not self.model_dir.is_dir():
-            raise ValueError(f"--model-dir {self.model_dir} is not a folder")
+        if self.pairs and mocap.find_data_root(self.data_root, "cmu_mocap") is None:
+            raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_mocap/)")
+        if not self.train and not self.models.is_dir():
+            raise ValueError(f"--model-dir {self.models} is not a folder")
+        if self.pairs and self.model_changes():
+            raise ValueError("--train-decode-from and --train-extrapolation change the single-person forecasters; "
+                             "the pair forecasters decode as the JAT they start from")
+        if self.pairs and not self.start_from.is_dir():
+            raise ValueError(f"--start-from {self.start_from} is not a folder")
         for name in ("train_steps", "train_batch"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -79,14 +105,34 @@ class Config:
             raise ValueError(f"--train-extrapolation must be in [0, 1], got {self.train_extrapolation}")
         if not self.train_speeds or min(self.train_speeds) <= 0:
             raise ValueError(f"--train-speeds must be positive, got {self.train_speeds}")
-        unknown = sorted(set(self.train_names) - set(FORECASTERS))
-        if unknown or not self.train_names:
-            raise ValueError(f"--train-names must name forecasters of {sorted(FORECASTERS)}, got {unknown}")
+        unknown = sorted(set(self.names) - set(self.table))
+        if unknown or not self.names:
+            raise ValueError(f"--train-names must name forecasters of {sorted(self.table)}, got {unknown}")
+
+    @property
+    def table(self) -> dict:
+        """The forecasters this run trains or loads, by name."""
+        return PAIR_FORECASTERS if self.pairs else FORECASTERS
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The forecasters --train trains."""
+        return tuple(self.table) if self.train_names is None else self.train_names
+
+    @property
+    def models(self) -> Path:
+        """The folder the forecasters are loaded from."""
+        if self.model_dir is not None:
+            return self.model_dir
+        return SHIPPED_FORECASTERS / "pairs" if self.pairs else SHIPPED_FORECASTERS
 
     def train_config(self, files: tuple[str, ...], validation_files: tuple[str, ...]) -> ForecastTrainConfig:
-        """The training run --train makes (before each forecaster's ``model`` is set)."""
+        """The training run --train makes (before each forecaster's ``model`` is set); with --pairs, ``files`` is
+        the training pair and ``validation_files`` empty."""
         config = ForecastTrainConfig(files, validation_files, speeds=self.train_speeds, mirror=self.train_mirror,
-                                     seed=self.seed)
+                                     seed=self.seed, **(PAIR_TRAIN if self.pairs else {}))
+        if self.pairs:
+            config = dataclasses.replace(config, start_from=str(self.start_from.resolve()))
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
         stage = dataclasses.replace(config.stage, **{name: value for name, value in (
@@ -101,19 +147,28 @@ class Config:
 
 def main(config: Config) -> None:
     body = geometry.stand_in_body_model()
-    training_files, validation_files = forecast_split(config.data_root)
-    files = (validation_files if config.split == "validation"
-             else tuple(str(f) for f in mocap.cmu_expmap_files(config.data_root, "test")))
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
+    if config.pairs:
+        training_pair, test_pair = pair_split(config.data_root)
+        training_files, validation_files = (training_pair,), ()
+        scored = (training_pair,) if config.split == "validation" else (test_pair,)
+    else:
+        training_files, validation_files = forecast_split(config.data_root)
+        scored = (validation_files if config.split == "validation"
+                  else tuple(str(f) for f in mocap.cmu_expmap_files(config.data_root, "test")))
     with _cli.run_folder(config.out, keep=("train",)) as out:
         log = _cli.jsonl_log(out)
+        train = train_pair_forecasters if config.pairs else train_forecasters
         if config.train:
-            models = train_forecasters(config.train_config(training_files, validation_files), workdir, body,
-                                       names=config.train_names, model_changes=config.model_changes(),
-                                       resume=True, log=log, progress=config.progress)
+            models = train(config.train_config(training_files, validation_files), workdir, body,
+                           names=config.names, resume=True, log=log, progress=config.progress,
+                           **({} if config.pairs else {"model_changes": config.model_changes()}))
         else:
-            models = load_forecasters(config.model_dir)
-        summary = run_forecast_study(out, models, body, files, stride=QUICK_STRIDE if config.quick else 10,
+            models = load_forecasters(config.models, config.table)
+        if config.pairs:
+            models = {"JAT (one person)": load_forecaster(config.start_from)} | models
+        summary = run_forecast_study(out, models, body, scored, people=2 if config.pairs else 1,
+                                     stride=QUICK_STRIDE if config.quick else 10,
                                      cache_dir=workdir / "data_cache" if config.train else None, log=log,
                                      progress=config.progress)
         report = (out / "results.md").read_text()

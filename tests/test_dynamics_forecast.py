@@ -4,6 +4,7 @@ a training run resumed after a kill."""
 
 import dataclasses
 import shutil
+import unittest.mock
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,7 @@ from scipy.spatial.transform import Rotation
 import dynamics
 import geometry
 import mocap
+import training
 from _training_harness import Killed, assert_same_parameters, kill_at
 
 BODY = geometry.stand_in_body_model()
@@ -137,6 +139,12 @@ def test_forecasters_take_scenes_and_refuse_bad_shapes(model):
         dynamics.ForecasterConfig()
     with pytest.raises(ValueError, match="extrapolation is a fraction of the last step"):
         dataclasses.replace(next(iter(model.values())), extrapolation=1.5)
+    if "jat" in model:  # one observed frame has no last step to move on by (PHD+T needs 13 frames anyway)
+        extrapolating = dynamics.PoseForecaster(dynamics.ForecasterConfig(
+            jat=dataclasses.replace(TINY_JAT, decode_from="extrapolated")), rngs=nnx.Rngs(0))
+        last = lambda x: scene(x)[:, :, -1:]  # noqa: E731
+        with pytest.raises(ValueError, match="the extrapolated pose needs at least 2 observed frames, got 1"):
+            dynamics.forecast_joints(extrapolating, BODY, last(rotations), betas[:, :, -1:], last(joints), 2)
 
 
 EVERY_START = (("previous", 1.0), ("extrapolated", 1.0), ("mean", 1.0), ("extrapolated", 1 / 3))
@@ -272,6 +280,116 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
         dynamics.load_forecasters(tmp_path / "full")
 
 
+def _frames(video, person, frame) -> dynamics.PoseFrames:
+    """Rows of the given recordings, people and frames (their poses at zero; tracks numbered per person)."""
+    video, person, frame = (np.asarray(x, np.int32) for x in (video, person, frame))
+    rows = len(video)
+    track = np.unique(np.stack([video, person], 1), axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+    return dynamics.PoseFrames(np.broadcast_to(np.eye(3, dtype=np.float32), (rows, 24, 3, 3)),
+                               np.zeros((rows, 3), np.float32), np.zeros((rows, 24, 3), np.float32), track, video,
+                               person, frame)
+
+
+def test_scene_rows_and_the_validation_tail():
+    # Recording 0: one person, 8 frames; recording 1: two people, 10 frames each.
+    frames = _frames([0] * 8 + [1] * 20, [0] * 8 + [0] * 10 + [1] * 10, list(range(8)) + list(range(10)) * 2)
+    single = dynamics.scene_rows(frames, 4, stride=3)
+    assert_array_equal(single[:, 0, 0], [0, 3, 8, 11, 14, 18, 21, 24])  # every person's own windows
+    assert_array_equal(single[1, 0], [3, 4, 5, 6])
+    pairs = dynamics.scene_rows(frames, 4, people=2, stride=3)
+    assert pairs.shape == (3, 2, 4)  # the single-person recording gives none
+    assert_array_equal(pairs[0], [[8, 9, 10, 11], [18, 19, 20, 21]])
+    assert_array_equal(frames.frame[pairs[:, 0]], frames.frame[pairs[:, 1]])
+    early, tail = dynamics._train_forecast._split_tail(frames, 0.3)
+    assert_array_equal(tail.frame, [5, 6, 7, 7, 8, 9, 7, 8, 9])  # the last 30 %: from floor(0.7 x 8), 0.7 x 10
+    assert early.num_frames + tail.num_frames == frames.num_frames and early.frame.max() < 7
+    assert_array_equal(dynamics.scene_rows(tail, 3, people=2)[0], [[3, 4, 5], [6, 7, 8]])
+
+
+def _save(tmp_path, name: str, config: dynamics.ForecasterConfig, seed: int = 3):
+    folder = tmp_path / name
+    training.save_model(folder, config, nnx.state(dynamics.PoseForecaster(config, rngs=nnx.Rngs(seed))))
+    return folder
+
+
+def test_the_pair_models_start_from_a_trained_jat(tmp_path):
+    jat = _save(tmp_path, "jat", dynamics.ForecasterConfig(jat=TINY_JAT))
+    trained = dict(nnx.to_flat_state(nnx.state(dynamics.load_forecaster(jat), nnx.Param)))
+    mpjat = dynamics.initial_forecaster(dynamics.ForecasterConfig(
+        jat=dataclasses.replace(TINY_JAT, agent_aware=True)), 0, jat)
+    counterpart = {"query_other": "query", "key_other": "key", "bias_other": "bias_self"}
+    for path, variable in nnx.to_flat_state(nnx.state(mpjat, nnx.Param)):
+        source = tuple(counterpart.get(part, part) for part in path)
+        assert_array_equal(np.asarray(variable[...]), np.asarray(trained[source][...]), err_msg=str(path))
+    again = dynamics.initial_forecaster(dynamics.ForecasterConfig(jat=TINY_JAT), 0, jat)
+    assert_same_parameters(again, dynamics.load_forecaster(jat))
+    phdt = _save(tmp_path, "phdt", dynamics.ForecasterConfig(phdt=TINY_PHDT))
+    for start, model in ((phdt, dynamics.ForecasterConfig(jat=TINY_JAT)),
+                         (jat, dynamics.ForecasterConfig(jat=dataclasses.replace(TINY_JAT, temporal_dim=32)))):
+        with pytest.raises(ValueError, match="not a JAT that .* can start from"):
+            dynamics.initial_forecaster(model, 0, start)
+
+
+def test_pair_forecasters_train_with_the_interpenetration_term_and_score_it(data_root, tmp_path):
+    training_pair, test_pair = dynamics.pair_split(data_root)
+    assert training_pair.endswith("60_03_scaled.bvh+" + str(data_root / "cmu_mocap" / "61_03_scaled.bvh"))
+    start = _save(tmp_path, "jat", dynamics.ForecasterConfig(jat=TINY_JAT))
+    config = dynamics.ForecastTrainConfig(
+        (training_pair,), people=2, validation_tail=0.3, start_from=str(start), speeds=(1.0,), mirror=False,
+        stage=dynamics.StageConfig(steps=1, batch_size=2, learning_rate=1e-3, warmup_steps=0), observed=6,
+        horizon=3, checkpoint_interval=1, validation_interval=1, log_interval=1, cache_dir=str(tmp_path / "cache"))
+    # Each pair forecaster's run: its model, two people, its interpenetration weight (MPJAT's ablation: none).
+    runs = {}
+    with unittest.mock.patch.object(dynamics._train_forecast, "_train_table", lambda config, workdir, body, table,
+                                    *rest: runs.update(table) or {}):
+        dynamics.train_pair_forecasters(config, tmp_path / "runs", BODY, resume=False)
+    assert {name: (run.model.jat.agent_aware, run.losses.interpenetration, run.people) for name, run in runs.items()} \
+        == {"JAT": (False, 1.0, 2), "MPJAT": (True, 1.0, 2), "MPJAT w/o interpenetration": (True, 0.0, 2)}
+    # The run's objective on a batch it draws, the body model traced as the training step traces it (the
+    # interpenetration term's constants closed over); compiled without the gradient, which costs a minute more.
+    stage = {}
+
+    def run_stage(name, run, stage_config, workdir, model, trainable, objective, sample, validate, *args, **kwargs):
+        stage.update(objective=objective, sample=sample, validate=validate)
+        return model
+
+    with unittest.mock.patch.object(dynamics._train_forecast, "_run_stage", run_stage):
+        mpjat = dynamics.train_forecaster(dataclasses.replace(config, model=dynamics.ForecasterConfig(
+            jat=dataclasses.replace(TINY_JAT, agent_aware=True))), tmp_path / "run", BODY, resume=False,
+            progress=False)
+    rows = stage["sample"](jax.random.key(0))
+    assert rows.joints3d.shape == (2, 2, 9, 24, 3) and np.all(rows.video[:, 0] == rows.video[:, 1])
+    assert_array_equal(rows.frame[:, 0], rows.frame[:, 1])  # both people over the same frames
+    graphdef, state = nnx.split(mpjat)
+    objective = lambda state, body, rows: stage["objective"](  # noqa: E731
+        config, body, nnx.merge(graphdef, state), rows, jax.random.key(1), None)[1]
+    terms = jax.jit(objective)(state, BODY, rows)
+    assert "interpenetration" in terms and all(np.isfinite(float(value)) for value in terms.values())
+    with pytest.raises(ValueError, match="set people=2 and start_from"):
+        dynamics.train_pair_forecasters(dataclasses.replace(config, start_from=None), tmp_path / "x", BODY,
+                                        resume=False)
+    for options, message in (({"validation_tail": 0.0}, "give exactly one"), ({"people": 3}, "people must be 1 or 2"),
+                             ({"validation_files": ("a.txt",)}, "give exactly one")):
+        with pytest.raises(ValueError, match=message):
+            dataclasses.replace(config, **options)
+
+    from experiments.dynamics_study import run_forecast_study
+    summary = run_forecast_study(tmp_path / "study", {"MPJAT": mpjat}, BODY, [test_pair], people=2, observed=6,
+                                 stride=40, horizons_ms=(80, 120), cache_dir=tmp_path / "cache", progress=False)
+    assert summary["windows"] == {"60_05_scaled+61_05_scaled": 9}
+    assert set(summary["penetration_mm"]) == {"ZeroMotion", "ground truth", "MPJAT"}  # constant velocity: no body
+    assert all(value >= 0 for values in summary["penetration_mm"].values() for value in values)
+    # The windows start at the pair's frames 0, 40, ...: ZeroMotion's error is how far each person moved from frame 5.
+    frames = dynamics.pose_frames([test_pair], BODY, cache_dir=tmp_path / "cache")
+    joints = frames.joints3d.reshape(2, -1, 24, 3)
+    last = np.arange(9) * 40 + 5
+    moved = [joints[:, last + k] - joints[:, last] for k in (2, 3)]
+    expected = [1000.0 * np.mean(np.linalg.norm(m - m[..., :1, :], axis=-1)) for m in moved]  # pelvis aligned
+    assert_allclose(summary["mpjpe_mm"]["ZeroMotion"]["average"], expected, rtol=1e-4)
+    markdown = (tmp_path / "study" / "results.md").read_text()
+    assert "## Average over pairs (9 windows)" in markdown and "## Interpenetration" in markdown
+
+
 def test_command_refuses_a_missing_data_folder(tmp_path, capsys):
     from experiments import dynamics_forecast
     with pytest.raises(SystemExit) as exit_:
@@ -297,3 +415,13 @@ def test_command_line_training_options(data_root, tmp_path):
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
         with pytest.raises(ValueError, match=message):
             dynamics_forecast.Config(out=tmp_path, data_root=data_root, **options)
+    pairs = dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train=True)
+    assert pairs.names == tuple(dynamics.PAIR_FORECASTERS) and pairs.models == dynamics.SHIPPED_FORECASTERS / "pairs"
+    train = pairs.train_config(("a+b",), ())
+    assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
+    with pytest.raises(ValueError, match="--train-names must name forecasters of"):
+        dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
+    with pytest.raises(ValueError, match="the pair forecasters decode as the JAT they start from"):
+        dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_extrapolation=0.3)
+    with pytest.raises(ValueError, match="--start-from .* is not a folder"):
+        dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, start_from=tmp_path / "none")

@@ -288,15 +288,50 @@ FORECAST_QUICK = {
 }
 
 
-def test_dynamics_forecast_quick_on_the_shipped_models(data_root, tmp_path):
-    _run("dynamics_forecast", "--quick", "--data-root", data_root, out=tmp_path)
+# `python -m experiments.dynamics_forecast --pairs --quick --data-root DATA --out OUT` on the shipped pair forecasters
+# (docs/dynamics.md "Two people"): the test salsa pair, windows every 25 frames, MPJPE (mm) at 80-1000 ms, and the
+# interpenetration (mm) of each method's forecast at those horizons.
+FORECAST_PAIRS_QUICK = {
+    "ZeroMotion": (60.970, 99.658, 134.584, 143.430, 179.251),
+    "Constant velocity": (54.167, 140.056, 318.215, 396.566, 950.368),
+    "JAT (one person)": (52.879, 106.480, 163.632, 183.555, 225.372),
+    "JAT": (54.760, 105.623, 144.819, 153.385, 177.887),
+    "MPJAT": (55.237, 106.919, 147.465, 156.657, 174.017),
+    "MPJAT w/o interpenetration": (55.448, 106.456, 148.123, 157.585, 177.022),
+}
+# Depths of a few vertices averaged: figures of a few hundredths of a millimetre, pinned to a thousandth (absolute).
+FORECAST_PAIRS_PENETRATION = {
+    "ZeroMotion": (0.0, 0.0, 0.0, 0.0, 0.0),
+    "ground truth": (0.0344, 0.0067, 0.0, 0.0, 0.0),
+    "JAT (one person)": (0.0201, 0.0541, 0.1103, 0.1223, 0.0702),
+    "JAT": (0.0100, 0.0862, 0.3932, 0.8436, 0.9778),
+    "MPJAT": (0.0120, 0.0497, 0.1966, 0.6972, 1.6562),
+    "MPJAT w/o interpenetration": (0.0023, 0.0964, 0.4247, 0.8770, 2.1940),
+}
+
+
+@pytest.mark.parametrize(("options", "windows", "pinned", "penetration"), [
+    ((), {"basketball": 3, "jumping": 16, "running": 0, "soccer": 4, "walking": 2, "walking_extra": 37,
+          "washwindow": 21}, FORECAST_QUICK, None),
+    (("--pairs",), {"60_05_scaled+61_05_scaled": 13}, FORECAST_PAIRS_QUICK, FORECAST_PAIRS_PENETRATION),
+], ids=["one person", "pairs"])
+def test_dynamics_forecast_quick_on_the_shipped_models(data_root, tmp_path, options, windows, pinned, penetration):
+    _run("dynamics_forecast", *options, "--quick", "--data-root", data_root, out=tmp_path)
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["fps"] == 25.0 and results["observed_frames"] == 25 and results["horizon_frames"] == [2, 4, 8, 10, 25]
-    assert results["windows"] == {"basketball": 3, "jumping": 16, "running": 0, "soccer": 4, "walking": 2,
-                                  "walking_extra": 37, "washwindow": 21}
+    assert results["windows"] == windows and results["people"] == (2 if penetration else 1)
     measured = {method: tuple(table["average"]) for method, table in results["mpjpe_mm"].items()}
-    assert measured.keys() == FORECAST_QUICK.keys()
-    _assert_table(measured, FORECAST_QUICK)
+    assert measured.keys() == pinned.keys()
+    _assert_table(measured, pinned)
     for name in ("results.md", "forecast.png", "run.json", "log.jsonl"):
         assert (tmp_path / name).is_file(), name
-    assert "No window (file shorter than 50 frames): running." in (tmp_path / "results.md").read_text()
+    markdown = (tmp_path / "results.md").read_text()
+    if penetration is None:
+        assert "No window (file shorter than 50 frames): running." in markdown and "penetration_mm" not in results
+        return
+    assert "## Interpenetration" in markdown
+    depths = {method: tuple(values) for method, values in results["penetration_mm"].items()}
+    assert depths.keys() == penetration.keys()
+    off = {method: (depths[method], value) for method, value in penetration.items()
+           if depths[method] != pytest.approx(value, abs=1e-3)}
+    assert not off, f"measured against pinned: {off}"

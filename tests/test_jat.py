@@ -13,7 +13,9 @@ from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose
 
 import geometry
-from dynamics import JAT, JATConfig, SMPLParams, as_multi_person, interpenetration, scene_windows, zero_motion
+import dynamics
+from dynamics import (JAT, JATConfig, SMPLParams, as_multi_person, interpenetration, penetration_surfaces,
+                      scene_windows, zero_motion)
 from test_dynamics import BODY, K, true_frames
 
 SMALL = JATConfig(feature_dim=16, temporal_dim=16, joint_dim=8, hmr_hidden=16, bias_hidden=8, receptive_field=10)
@@ -71,6 +73,21 @@ def test_observation_is_causal_and_jit_equals_eager(models):
     eager = models[True].observe(BODY, features, boxes, Ks)
     for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(run(models[True], features, boxes, Ks)[0])):
         assert_allclose(a, b, rtol=1e-9, atol=1e-10)
+
+
+def test_forecast_scenes_pads_batches_and_equals_one_scene_at_a_time(models):
+    """dynamics.forecast_scenes (the evaluation's and the strip's forecasts): 17 scenes in two batches of 16, the
+    second padded; each scene's outputs are those of the scene alone."""
+    scenes = [scene(seed) for seed in range(17)]
+    features, boxes, Ks = (np.concatenate(part) for part in zip(*scenes))
+    present = np.ones((17, PEOPLE), bool)
+    present[3, 1] = False
+    seen, rollout = dynamics.forecast_scenes(models[True], BODY, features, boxes, Ks, present, FRAMES, HORIZON)
+    assert rollout.params.rot6d.shape == (17, PEOPLE, HORIZON, 24, 6)
+    for index in (0, 3, 16):
+        alone = run(models[True], *scenes[index], present[index:index + 1])
+        for ours, theirs in zip(jax.tree.leaves((seen, rollout)), jax.tree.leaves(alone)):
+            assert_allclose(np.asarray(ours)[index], np.asarray(theirs)[0], rtol=1e-8, atol=1e-9)
 
 
 def test_jat_keeps_people_apart_and_mpjat_lets_them_interact(models):
@@ -161,3 +178,9 @@ def test_interpenetration_vanishes_apart_and_pushes_overlapping_people_apart():
     assert closer > overlap
     gradient = jax.grad(lambda root: jnp.sum(interpenetration(BODY, params, root)))(close)
     assert gradient[0, 0, 0, 0] > 0 and gradient[0, 1, 0, 0] < 0  # descending moves person 0 left, person 1 right
+    # Inside a jitted step the body model is an argument (traced): its capsules come precomputed.
+    surfaces = penetration_surfaces(BODY)
+    traced = jax.jit(lambda body, root: interpenetration(body, params, root, surfaces))(BODY, close)
+    assert_allclose(float(traced[0, 0]), overlap, rtol=1e-6)
+    with pytest.raises(jax.errors.TracerArrayConversionError):
+        jax.jit(lambda body, root: interpenetration(body, params, root))(BODY, close)

@@ -28,8 +28,8 @@ from jaxtyping import Array, Float
 import geometry
 import mocap
 import training
-from dynamics import (EvalConfig, build_frames, compute_features, crop_square, predict_windows, square_boxes,
-                      summarise, video_tracks, zero_motion)
+from dynamics import (EvalConfig, build_frames, compute_features, crop_square, forecast_scenes, predict_windows,
+                      square_boxes, summarise, video_tracks, zero_motion)
 
 from ._report import overlay_meshes, plot_prediction, results_markdown
 
@@ -95,10 +95,9 @@ def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyM
     region = square_boxes(np.concatenate([shown[..., :2].min(axis=(0, 1)), shown[..., 2:].max(axis=(0, 1))]), 1.2)
     zoom = lambda image: crop_square(image, region, STRIP_SIZE)  # noqa: E731  (the people, not the empty scene)
     strip = [[zoom(video.frames[t]) for t in STRIP_FRAMES]]
-    predictions = []
-    for model in models.values():
-        seen = model.observe(body, features[..., :T, :], rows.boxes[..., :T, :], rows.K[..., :T, :, :])
-        predictions.append((seen, model.rollout(body, seen, config.horizon)))
+    present = jnp.ones(scene[:2], bool)
+    predictions = [forecast_scenes(model, body, features, rows.boxes, rows.K, present, T, config.horizon)
+                   for model in models.values()]
     predictions.append((predictions[0][0], zero_motion(predictions[0][0], config.horizon)))
     for seen, rollout in predictions:
         # Scene arrays are (1, N, frames, ...): join observed and predicted frames on axis 2.

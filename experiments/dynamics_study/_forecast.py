@@ -1,11 +1,16 @@
 """3D forecasting on the CMU-Mocap benchmark (``python -m experiments.dynamics_forecast``): the 3D forecasters,
-ZeroMotion and constant velocity on every window of the evaluated files, per action and horizon.
+ZeroMotion and constant velocity on every window of the evaluated files, per action and horizon; or, on scenes of
+two people (the CMU salsa pairs), per pair, with the interpenetration of every method's forecast.
 
 A window is ``observed`` frames in and ``horizon`` frames predicted at :data:`~dynamics.FORECAST_FPS`, starting
 every ``stride`` frames of a file (files shorter than a window give none), in the virtual camera frame of its
-last observed frame (:func:`~dynamics.canonical_windows`). The score of a method at a horizon is the MPJPE (mm,
-the body model's 24 joints after aligning the pelvises) at that predicted frame, averaged over the windows of an
-action; "average" is the mean over the actions that have windows (as the benchmark's papers average them).
+(first person's) last observed frame (:func:`~dynamics.canonical_scenes`). The score of a method at a horizon is
+the MPJPE (mm, the body model's 24 joints after aligning the pelvises) at that predicted frame, averaged over the
+windows (and people) of an action or pair; "average" is the mean over the actions that have windows (as the
+benchmark's papers average them). Interpenetration (two people): the depth of a person's sampled vertices inside
+the other's body capsules (:func:`~dynamics.penetration_depths`), mean over vertices, people and windows (mm),
+for the forecasters, ZeroMotion (the last observed pose repeated) and the ground truth; constant velocity moves
+joints, not a body, and has none.
 """
 
 from __future__ import annotations
@@ -23,9 +28,10 @@ from flax import nnx
 from matplotlib.figure import Figure
 
 import geometry
+import mocap
 import training
-from dynamics import (FORECAST_FPS, FORECAST_HORIZONS_MS, PoseForecaster, canonical_windows,
-                      constant_velocity_forecast, forecast_joints, pose_frames, window_starts,
+from dynamics import (FORECAST_FPS, FORECAST_HORIZONS_MS, PoseForecaster, SMPLParams, canonical_scenes,
+                      constant_velocity_forecast, params_to_joints, penetration_depths, pose_frames, scene_rows,
                       zero_motion_forecast)
 
 __all__ = ["BASELINES", "forecast_markdown", "plot_forecast", "run_forecast_study"]
@@ -42,11 +48,21 @@ def _frames_of(milliseconds: int, fps: float) -> int:
     return round(frames)
 
 
+def _depths_mm(body: geometry.BodyModel, params: SMPLParams, root: jax.Array) -> jax.Array:
+    return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
+
+
 def _model_forecast(model: PoseForecaster, body: geometry.BodyModel, windows, observed: int, horizon: int
-                    ) -> np.ndarray:
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The joints ``(W, N, horizon, 24, 3)`` ``model`` predicts for the windows, and with two or more people their
+    interpenetration ``(W, N, horizon)`` (mm)."""
+    people = windows.joints3d.shape[1]
+
     @nnx.jit
     def run(model, rotations, betas, joints):
-        return forecast_joints(model, body, rotations, betas, joints, horizon)
+        rollout = model.rollout(body, model.observe(rotations, betas, joints), horizon)
+        depths = _depths_mm(body, rollout.params, rollout.root) if people > 1 else None
+        return params_to_joints(body, rollout.params, rollout.root), depths
 
     past = jax.tree.map(lambda x: x[:, :, :observed], windows)
     chunks = []
@@ -54,47 +70,74 @@ def _model_forecast(model: PoseForecaster, body: geometry.BodyModel, windows, ob
         chunk = jax.tree.map(lambda x: x[first: first + _CHUNK], past)
         size = len(chunk.joints3d)
         padded = jax.tree.map(lambda x: np.concatenate([x, np.repeat(x[-1:], _CHUNK - size, axis=0)]), chunk)
-        chunks.append(np.asarray(run(model, padded.rotations, padded.betas, padded.joints3d))[:size])
-    return np.concatenate(chunks)
+        chunks.append(jax.tree.map(lambda x: np.asarray(x)[:size],
+                                   run(model, padded.rotations, padded.betas, padded.joints3d)))
+    joints, depths = zip(*chunks)
+    return np.concatenate(joints), None if people == 1 else np.concatenate(depths)
+
+
+def _baseline_depths(body: geometry.BodyModel, windows, observed: int, horizon: int) -> dict[str, np.ndarray]:
+    """The interpenetration (mm, ``(W, N, horizon)``) of the true future and of ZeroMotion's."""
+    params = SMPLParams(geometry.matrix_to_rotation_6d(jnp.asarray(windows.rotations)), jnp.asarray(windows.betas),
+                        jnp.zeros(windows.joints3d.shape[:-2], jnp.float32))
+    root = jnp.asarray(windows.joints3d[..., 0, :])
+    future = lambda x: x[:, :, observed:observed + horizon]  # noqa: E731
+    last = lambda x: jnp.repeat(x[:, :, observed - 1:observed], horizon, axis=2)  # noqa: E731
+    depths = jax.jit(lambda params, root: _depths_mm(body, params, root))
+    return {"ZeroMotion": np.asarray(depths(jax.tree.map(last, params), last(root))),
+            "ground truth": np.asarray(depths(jax.tree.map(future, params), future(root)))}
+
+
+def _group_of(source: str | Path, people: int) -> str:
+    """The table a recording's windows are averaged in: its action (the folder of a benchmark file), or the pair."""
+    files = mocap.clip_files(str(source)) or (Path(source),)
+    return files[0].parent.name if people == 1 else "+".join(file.stem for file in files)
 
 
 def run_forecast_study(out: str | Path, models: Mapping[str, PoseForecaster], body: geometry.BodyModel,
-                       files: Sequence[str | Path], *, observed: int = 25, stride: int = 10,
+                       files: Sequence[str | Path], *, people: int = 1, observed: int = 25, stride: int = 10,
                        horizons_ms: Sequence[int] = FORECAST_HORIZONS_MS, fps: float = FORECAST_FPS,
                        cache_dir: str | Path | None = None, log: Callable[[dict], None] = lambda record: None,
                        progress: bool = True) -> dict:
-    """Score ``models`` and :data:`BASELINES` on ``files`` (module docstring) and write ``out/results.json``,
-    ``results.md`` and ``forecast.png``; returns the summary."""
+    """Score ``models`` and :data:`BASELINES` on ``files`` (module docstring; with ``people=2``, recordings of two
+    people captured together, their files joined by ``+``) and write ``out/results.json``, ``results.md`` and
+    ``forecast.png``; returns the summary."""
     started = time.perf_counter()
     out = Path(out)
     horizon_frames = [_frames_of(ms, fps) for ms in horizons_ms]
     horizon = max(horizon_frames)
-    files = [Path(file) for file in files]
     frames = pose_frames(files, body, fps, cache_dir, progress)
-    starts = window_starts(frames, observed + horizon, stride)
-    windows = canonical_windows(frames, starts, observed + horizon, observed)
-    actions = np.asarray([files[track].parent.name for track in frames.track[starts]])
-    truth = windows.joints3d[:, 0, observed:]
-    predictions = {name: np.asarray(baseline(windows.joints3d[:, 0, :observed], horizon))
+    rows = scene_rows(frames, observed + horizon, people, stride)
+    windows = canonical_scenes(frames, rows, observed)
+    labels = [_group_of(file, people) for file in files]
+    groups = np.asarray([labels[video] for video in frames.video[rows[:, 0, 0]]])
+    truth = windows.joints3d[:, :, observed:]
+    predictions = {name: np.asarray(baseline(windows.joints3d[:, :, :observed], horizon))
                    for name, baseline in BASELINES.items()}
+    depths = _baseline_depths(body, windows, observed, horizon) if people > 1 else {}
     for name, model in tqdm.tqdm(models.items(), desc="forecasters", disable=not progress):
-        predictions[name] = _model_forecast(model, body, windows, observed, horizon)[:, 0]
-    errors = {name: 1000.0 * np.asarray(geometry.mpjpe_root_relative(jnp.asarray(p), jnp.asarray(truth), 0))
-              for name, p in predictions.items()}  # (windows, horizon) mm
-    every_action = sorted({file.parent.name for file in files})
-    scored = [action for action in every_action if np.any(actions == action)]
-    per_action = {name: {action: [float(np.mean(error[actions == action, k - 1])) for k in horizon_frames]
-                         for action in scored} for name, error in errors.items()}
+        predictions[name], depth = _model_forecast(model, body, windows, observed, horizon)
+        if depth is not None:
+            depths[name] = depth
+    errors = {name: 1000.0 * np.mean(np.asarray(geometry.mpjpe_root_relative(jnp.asarray(p), jnp.asarray(truth), 0)),
+                                     axis=1) for name, p in predictions.items()}  # (windows, horizon) mm
+    every_group = sorted(set(labels))
+    scored = [group for group in every_group if np.any(groups == group)]
+    per_group = {name: {group: [float(np.mean(error[groups == group, k - 1])) for k in horizon_frames]
+                        for group in scored} for name, error in errors.items()}
     summary = {
         "fps": fps, "observed_frames": observed, "horizons_ms": list(horizons_ms), "horizon_frames": horizon_frames,
-        "stride": stride, "files": [str(file) for file in files],
-        "windows": {action: int(np.sum(actions == action)) for action in every_action},
+        "stride": stride, "people": people, "files": [str(file) for file in files],
+        "windows": {group: int(np.sum(groups == group)) for group in every_group},
         "mpjpe_mm": {name: {**table, "average": np.mean(list(table.values()), axis=0).tolist()}
-                     for name, table in per_action.items()},
+                     for name, table in per_group.items()},
         "mpjpe_mm_by_frame": {name: np.mean(error, axis=0).tolist() for name, error in errors.items()},
-        "seconds": round(time.perf_counter() - started, 1),
     }
-    log({"event": "forecast", "windows": len(starts), "seconds": summary["seconds"]})
+    if depths:
+        summary["penetration_mm"] = {name: [float(np.mean(depth[:, :, k - 1])) for k in horizon_frames]
+                                     for name, depth in depths.items()}
+    summary["seconds"] = round(time.perf_counter() - started, 1)
+    log({"event": "forecast", "windows": len(rows), "seconds": summary["seconds"]})
     training.write_atomically(out / "results.json", lambda file: file.write(json.dumps(summary, indent=2).encode()))
     (out / "results.md").write_text(forecast_markdown(summary))
     plot_forecast(summary, out / "forecast.png")
@@ -102,12 +145,14 @@ def run_forecast_study(out: str | Path, models: Mapping[str, PoseForecaster], bo
 
 
 def forecast_markdown(summary: Mapping) -> str:
-    """The average over actions, then one table per action: MPJPE (mm) of every method at every horizon."""
+    """The average over actions (pairs), then one table per action (pair): MPJPE (mm) of every method at every
+    horizon; then the interpenetration of two-person scenes."""
     header = ["| method | " + " | ".join(f"{ms} ms" for ms in summary["horizons_ms"]) + " |",
               "|---|" + "---|" * len(summary["horizons_ms"])]
     unscored = [action for action, count in summary["windows"].items() if count == 0]
-    tables = {"average": "Average over actions"} | {action: action for action in summary["windows"]
-                                                     if action not in unscored}
+    groups = "actions" if summary["people"] == 1 else "pairs"
+    tables = {"average": f"Average over {groups}"} | {group: group for group in summary["windows"]
+                                                      if group not in unscored}
     lines = [f"MPJPE (mm, 24 body joints, pelvis aligned) at {summary['fps']:g} Hz after {summary['observed_frames']} "
              f"observed frames; windows every {summary['stride']} frames."]
     if unscored:
@@ -118,6 +163,11 @@ def forecast_markdown(summary: Mapping) -> str:
         lines += ["", f"## {title} ({count} windows)", "", *header]
         for method, table in summary["mpjpe_mm"].items():
             lines.append(f"| {method} | " + " | ".join(f"{value:.1f}" for value in table[key]) + " |")
+    if "penetration_mm" in summary:
+        lines += ["", "## Interpenetration: mean depth of a person's sampled vertices inside the other (mm)", "",
+                  *header]
+        for method, values in summary["penetration_mm"].items():
+            lines.append(f"| {method} | " + " | ".join(f"{value:.2f}" for value in values) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -130,7 +180,8 @@ def plot_forecast(summary: Mapping, path: str | Path) -> None:
         axis.plot(times, values, label=method, linestyle="--" if method in BASELINES else "-")
     axis.set_xlabel("prediction time (ms)")
     axis.set_ylabel("MPJPE (mm)")
-    axis.set_title(f"3D forecasting after {summary['observed_frames']} observed frames ({summary['fps']:g} Hz)")
+    scenes = "" if summary["people"] == 1 else f", scenes of {summary['people']} people"
+    axis.set_title(f"3D forecasting after {summary['observed_frames']} observed frames ({summary['fps']:g} Hz{scenes})")
     axis.grid(alpha=0.3)
     axis.legend()
     figure.tight_layout()
