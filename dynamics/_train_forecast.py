@@ -237,7 +237,7 @@ def _future_errors(body, model: PoseForecaster, rows: PoseFrames, observed: int)
     past = jax.tree.map(lambda x: x[:, :, :observed], rows)
     truth = rows.joints3d[:, :, observed:]
     predicted = forecast_joints(model, body, past.rotations, past.betas, past.joints3d, truth.shape[2])
-    error = geometry.mpjpe_root_relative(predicted, truth, 0)  # (W, 1, H)
+    error = geometry.mpjpe_root_relative(predicted, truth, 0)  # (W, N, H)
     root = jnp.linalg.norm(predicted[..., 0, :] - truth[..., 0, :], axis=-1)
     return {"val_future_mpjpe_mm": 1000.0 * jnp.mean(error), "val_future_root_mm": 1000.0 * jnp.mean(root)}
 
