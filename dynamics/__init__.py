@@ -46,6 +46,7 @@ from ._data import TEST_SINGLE_PERSON_CLIPS as TEST_SINGLE_PERSON_CLIPS
 from ._data import TRAIN_CLIPS as TRAIN_CLIPS
 from ._evaluate import forecast_scenes as forecast_scenes
 from ._evaluate import frame_metrics as frame_metrics
+from ._evaluate import penetration_mm as penetration_mm
 from ._evaluate import predict_windows as predict_windows
 from ._evaluate import summarise as summarise
 from ._evaluate import zero_motion as zero_motion

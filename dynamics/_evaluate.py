@@ -43,8 +43,8 @@ from ._phdt import Observation, PHDTConfig, Rollout, params_to_joints
 PHDT_RECEPTIVE_FIELD = PHDTConfig().tcn_blocks * 2 * (PHDTConfig().tcn_kernel - 1) + 1
 """13: conditioning is scored from this frame on, the first PHD+T reconstructs with a full receptive field."""
 
-__all__ = ["EvalConfig", "HORIZONS", "METRICS", "SCENE_BATCH", "forecast_scenes", "frame_metrics", "predict_windows",
-           "summarise", "zero_motion"]
+__all__ = ["EvalConfig", "HORIZONS", "METRICS", "SCENE_BATCH", "forecast_scenes", "frame_metrics", "penetration_mm",
+           "predict_windows", "summarise", "zero_motion"]
 
 HORIZONS: tuple[int, ...] = (1, 5, 10, 20, 30)
 METRICS: tuple[str, ...] = ("pa_mpjpe", "mpjpe", "pck", "root")
@@ -99,6 +99,13 @@ def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Arra
     }
 
 
+def penetration_mm(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b N T 3"]
+                   ) -> Float[Array, "*b N T"]:
+    """The interpenetration measure of each person and frame: :func:`penetration_depths` averaged over the sampled
+    vertices, mm."""
+    return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
+
+
 SCENE_BATCH = 16
 """Scenes per call of a model's compiled forecast (:func:`forecast_scenes`; the last batch padded)."""
 
@@ -140,7 +147,7 @@ def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], 
     frames, single-person videos padded to two people); a sample is one person of one window. Returns
     ``{"two_person": (S,) bool, "conditioning": {method: {metric: (S, T - 12)}}, "prediction": {method:
     {metric: (S, horizon)}}, "penetration": {method: (S, horizon)}}``, the last in mm for the two-person samples
-    (:func:`penetration_depths` averaged over the sampled vertices), with the ground truth's as ``"ground truth"``."""
+    (:func:`penetration_mm`), with the ground truth's as ``"ground truth"``."""
     scenes, present = scene_windows(frames, config.length, config.stride, people=2)
     if len(scenes) == 0:
         raise ValueError(f"no video is {config.length} frames long")
@@ -150,20 +157,17 @@ def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], 
     past = jax.tree.map(lambda x: x[:, :, first:T], rows)
     future = jax.tree.map(lambda x: x[:, :, T:], rows)
 
-    def depths(params, root):
-        return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
-
     @jax.jit
     def score(seen: Observation, rollout: Rollout, past: Frames, future: Frames):
         tail = jax.tree.map(lambda x: x[:, :, first:], seen)
         return (frame_metrics(body, tail.params, tail.root, past, config.pck_alpha),
                 frame_metrics(body, rollout.params, rollout.root, future, config.pck_alpha),
-                depths(rollout.params, rollout.root))
+                penetration_mm(body, rollout.params, rollout.root))
 
     @jax.jit
     def truth(rows: Frames):
         params = SMPLParams(geometry.matrix_to_rotation_6d(rows.rotations), rows.betas, jnp.zeros_like(rows.root))
-        return depths(params, rows.root)
+        return penetration_mm(body, params, rows.root)
 
     conditioning, prediction, penetration = {}, {}, {}
     for index, (name, model) in enumerate(models.items()):

@@ -87,10 +87,9 @@ class Config:
     """Progress bars."""
 
     def __post_init__(self) -> None:
-        if mocap.find_data_root(self.data_root, "cmu_expmap") is None:
-            raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_expmap/)")
-        if self.pairs and mocap.find_data_root(self.data_root, "cmu_mocap") is None:
-            raise ValueError("no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with cmu_mocap/)")
+        needs = "cmu_mocap" if self.pairs else "cmu_expmap"  # the salsa pairs, or the benchmark's motion
+        if mocap.find_data_root(self.data_root, needs) is None:
+            raise ValueError(f"no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with {needs}/)")
         if not self.train and not self.models.is_dir():
             raise ValueError(f"--model-dir {self.models} is not a folder")
         if self.pairs and self.model_changes():

@@ -399,6 +399,11 @@ def test_command_refuses_a_missing_data_folder(tmp_path, capsys):
     assert exit_.value.code == 2
     assert f"data folder {tmp_path} holds no cmu_expmap" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+    # The pairs need the salsa files, not the benchmark's.
+    with pytest.raises(ValueError, match=f"data folder {tmp_path} holds no cmu_mocap"):
+        dynamics_forecast.Config(out=tmp_path / "out", data_root=tmp_path, pairs=True)
+    (tmp_path / "cmu_mocap").mkdir()
+    assert dynamics_forecast.Config(out=tmp_path / "out", data_root=tmp_path, pairs=True).pairs
 
 
 def test_command_line_training_options(data_root, tmp_path):

@@ -7,10 +7,10 @@ every ``stride`` frames of a file (files shorter than a window give none), in th
 (first person's) last observed frame (:func:`~dynamics.canonical_scenes`). The score of a method at a horizon is
 the MPJPE (mm, the body model's 24 joints after aligning the pelvises) at that predicted frame, averaged over the
 windows (and people) of an action or pair; "average" is the mean over the actions that have windows (as the
-benchmark's papers average them). Interpenetration (two people): the depth of a person's sampled vertices inside
-the other's body capsules (:func:`~dynamics.penetration_depths`), mean over vertices, people and windows (mm),
-for the forecasters, ZeroMotion (the last observed pose repeated) and the ground truth; constant velocity moves
-joints, not a body, and has none.
+benchmark's papers average them). Interpenetration (two people): the mean depth (mm) of a person's sampled
+vertices inside the other's body capsules (:func:`~dynamics.penetration_mm`), averaged over people and windows, for
+the forecasters, ZeroMotion (the last observed pose repeated) and the ground truth; constant velocity moves joints,
+not a body, and has none.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import geometry
 import mocap
 import training
 from dynamics import (FORECAST_FPS, FORECAST_HORIZONS_MS, PoseForecaster, SMPLParams, canonical_scenes,
-                      constant_velocity_forecast, params_to_joints, penetration_depths, pose_frames, scene_rows,
+                      constant_velocity_forecast, params_to_joints, penetration_mm, pose_frames, scene_rows,
                       zero_motion_forecast)
 
 __all__ = ["BASELINES", "forecast_markdown", "plot_forecast", "run_forecast_study"]
@@ -48,10 +48,6 @@ def _frames_of(milliseconds: int, fps: float) -> int:
     return round(frames)
 
 
-def _depths_mm(body: geometry.BodyModel, params: SMPLParams, root: jax.Array) -> jax.Array:
-    return 1000.0 * jnp.mean(penetration_depths(body, params, root), axis=-1)
-
-
 def _model_forecast(model: PoseForecaster, body: geometry.BodyModel, windows, observed: int, horizon: int
                     ) -> tuple[np.ndarray, np.ndarray | None]:
     """The joints ``(W, N, horizon, 24, 3)`` ``model`` predicts for the windows, and with two or more people their
@@ -61,7 +57,7 @@ def _model_forecast(model: PoseForecaster, body: geometry.BodyModel, windows, ob
     @nnx.jit
     def run(model, rotations, betas, joints):
         rollout = model.rollout(body, model.observe(rotations, betas, joints), horizon)
-        depths = _depths_mm(body, rollout.params, rollout.root) if people > 1 else None
+        depths = penetration_mm(body, rollout.params, rollout.root) if people > 1 else None
         return params_to_joints(body, rollout.params, rollout.root), depths
 
     past = jax.tree.map(lambda x: x[:, :, :observed], windows)
@@ -83,7 +79,7 @@ def _baseline_depths(body: geometry.BodyModel, windows, observed: int, horizon: 
     root = jnp.asarray(windows.joints3d[..., 0, :])
     future = lambda x: x[:, :, observed:observed + horizon]  # noqa: E731
     last = lambda x: jnp.repeat(x[:, :, observed - 1:observed], horizon, axis=2)  # noqa: E731
-    depths = jax.jit(lambda params, root: _depths_mm(body, params, root))
+    depths = jax.jit(lambda params, root: penetration_mm(body, params, root))
     return {"ZeroMotion": np.asarray(depths(jax.tree.map(last, params), last(root))),
             "ground truth": np.asarray(depths(jax.tree.map(future, params), future(root)))}
 
