@@ -112,6 +112,26 @@ class Similarity(NamedTuple):
         return self.scale[..., None, None] * rotated + self.translation[..., None, :]
 
 
+# jaxlib's CPU LAPACK kernels split a large batch over XLA's intra-op threads and then wait, on a thread of that
+# same pool, for the pieces: two such calls at once take both threads of a 2-core machine and never finish (the
+# dynamics evaluation hung so, scoring two Procrustes alignments in one computation). A call below about 740 3x3
+# matrices runs in place (jaxlib's threshold: 2e5 FLOP, 270 FLOP per 3x3 SVD), so the CPU takes them in slices.
+_CPU_SVD_SLICE = 512
+
+
+def _svd_3x3(matrices: Float[Array, "*b 3 3"]) -> tuple[Array, Array, Array]:
+    def sliced(matrices: Array) -> tuple[Array, Array, Array]:
+        u, singular, vt = jax.lax.map(jnp.linalg.svd, matrices.reshape(-1, 3, 3), batch_size=_CPU_SVD_SLICE)
+        return u.reshape(matrices.shape), singular.reshape(matrices.shape[:-1]), vt.reshape(matrices.shape)
+
+    return jax.lax.platform_dependent(matrices, cpu=sliced, default=lambda matrices: tuple(jnp.linalg.svd(matrices)))
+
+
+def _det_3x3(matrices: Float[Array, "*b 3 3"]) -> Float[Array, "*b"]:
+    """The triple product of the rows (no LAPACK call, see above)."""
+    return jnp.sum(matrices[..., 0, :] * jnp.cross(matrices[..., 1, :], matrices[..., 2, :]), axis=-1)
+
+
 @jax.jit
 def similarity_procrustes(
     source: Float[ArrayLike, "*b J 3"],
@@ -132,8 +152,8 @@ def similarity_procrustes(
     centred_source = source - mean_source[..., None, :]
     centred_target = target - mean_target[..., None, :]
     covariance = jnp.einsum("...j,...ja,...jb->...ab", weights, centred_target, centred_source)
-    u, singular, vt = jnp.linalg.svd(covariance)
-    sign = jnp.where(jnp.linalg.det(u) * jnp.linalg.det(vt) < 0, -1.0, 1.0).astype(source.dtype)
+    u, singular, vt = _svd_3x3(covariance)
+    sign = jnp.where(_det_3x3(u) * _det_3x3(vt) < 0, -1.0, 1.0).astype(source.dtype)
     flip = jnp.stack([jnp.ones_like(sign), jnp.ones_like(sign), sign], axis=-1)
     rotation = jnp.einsum("...ik,...k,...kj->...ij", u, flip, vt)
     variance = jnp.sum(weights * jnp.sum(centred_source**2, axis=-1), axis=-1)

@@ -1,6 +1,7 @@
 """Pose metrics against hand-computed cases, NumPy/SciPy references of the published formulas, and
 invariances (hypothesis)."""
 
+import re
 from functools import partial
 
 import jax
@@ -149,6 +150,20 @@ def test_procrustes_of_a_collapsed_prediction_is_finite():
 
 
 # --- PCK -----------------------------------------------------------------------------------------
+
+def test_procrustes_of_many_poses_calls_lapack_in_small_slices():
+    """jaxlib's CPU LAPACK kernels spread a batch of more than ~740 3x3 SVDs over XLA's intra-op threads and wait
+    for the pieces on one of them; two such calls at once deadlock a 2-core machine (the dynamics evaluation hung
+    so, scoring two Procrustes alignments in one computation). The alignment slices its SVDs below that size and
+    computes the determinants without LAPACK; the sliced result equals the alignments one pose at a time."""
+    pred = np.random.default_rng(11).normal(size=(1200, 17, 3))
+    gt = np.random.default_rng(12).normal(size=(1200, 17, 3))
+    lowered = jax.jit(lambda p, g: pa_mpjpe(p, g) + pa_mpjpe(g, p)).lower(pred, gt).as_text()
+    batches = [int(match) for match in re.findall(r"custom_call @lapack_\w+\(.*?tensor<(\d+)x3x3x", lowered)]
+    assert batches and max(batches) <= 512
+    assert "getrf" not in lowered
+    assert_allclose(pa_mpjpe(pred, gt)[::97], [pa_mpjpe(p, g) for p, g in zip(pred[::97], gt[::97])], rtol=1e-10)
+
 
 
 def test_pck_3d_hand_computed_strict_threshold():
