@@ -17,7 +17,9 @@ Two kernels solve the same problem:
   call, no tiny matrix product, so ``vmap`` over millions of points stays vectorised, and it is
   differentiable.
 * ``"svd"``: the last right-singular vector of ``A`` from ``jnp.linalg.svd`` (slow on CPU: a LAPACK
-  call per point), kept as the reference.
+  call per point), kept as the reference. On a 2-core CPU, keep two large batches of it out of one compiled
+  computation: jaxlib's batched LAPACK kernels wait on XLA's intra-op threads, and two at once can deadlock
+  (see ``_metrics.py``, where the Procrustes alignment slices its SVDs for that reason).
 
 Public entry points batch over any leading dimensions (points, joints, frames); see :func:`triangulate`
 and :func:`triangulate_pixels`.
