@@ -149,8 +149,6 @@ def test_procrustes_of_a_collapsed_prediction_is_finite():
     assert_allclose(pa_mpjpe(np.ones((17, 3)), gt), np.linalg.norm(gt - gt.mean(0), axis=-1).mean())
 
 
-# --- PCK -----------------------------------------------------------------------------------------
-
 def test_procrustes_of_many_poses_calls_lapack_in_small_slices():
     """jaxlib's CPU LAPACK kernels spread a batch of more than ~740 3x3 SVDs over XLA's intra-op threads and wait
     for the pieces on one of them; two such calls at once deadlock a 2-core machine (the dynamics evaluation hung
@@ -164,6 +162,8 @@ def test_procrustes_of_many_poses_calls_lapack_in_small_slices():
     assert "getrf" not in lowered
     assert_allclose(pa_mpjpe(pred, gt)[::97], [pa_mpjpe(p, g) for p, g in zip(pred[::97], gt[::97])], rtol=1e-10)
 
+
+# --- PCK -----------------------------------------------------------------------------------------
 
 
 def test_pck_3d_hand_computed_strict_threshold():
