@@ -36,6 +36,10 @@ __all__ = ["ForecasterConfig", "PoseForecaster", "constant_velocity_forecast", "
            "zero_motion_forecast"]
 
 
+_WIDTHS = {PHDTConfig: ("feature_dim", "joint_dim", "hmr_hidden", "channels_per_group"),
+           JATConfig: ("feature_dim", "temporal_dim", "joint_dim", "hmr_hidden", "bias_hidden")}
+
+
 @dataclasses.dataclass(frozen=True)
 class ForecasterConfig:
     """A :class:`PoseForecaster`: exactly one of ``phdt`` (PHD+T's path) and ``jat`` (JAT, or MPJAT when
@@ -55,6 +59,13 @@ class ForecasterConfig:
     @property
     def num_shapes(self) -> int:
         return self.model.num_shapes
+
+    def widened(self, factor: int) -> ForecasterConfig:
+        """The same forecaster with every width of its networks (features, hidden units, groups) ``factor`` times
+        larger: at 2, :data:`~dynamics.FORECASTERS`' PHD+T has the video PHD+T's sizes."""
+        if factor < 1:
+            raise ValueError(f"the width factor must be >= 1, got {factor}")
+        return self.replace_model(**{name: factor * getattr(self.model, name) for name in _WIDTHS[type(self.model)]})
 
     def replace_model(self, **changes) -> ForecasterConfig:
         """The same forecaster with ``changes`` to its model's config (e.g. ``decode_from``)."""

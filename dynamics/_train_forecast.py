@@ -316,14 +316,15 @@ def train_forecaster(config: ForecastTrainConfig, workdir: str | Path, body: geo
 
 def train_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
                       names: Iterable[str] = tuple(FORECASTERS), model_changes: Mapping[str, object] | None = None,
-                      log: Callable[[dict], None] = lambda record: None, progress: bool = True
+                      width: int = 1, log: Callable[[dict], None] = lambda record: None, progress: bool = True
                       ) -> dict[str, PoseForecaster]:
-    """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced, with
-    ``model_changes`` to its model's config, e.g. ``decode_from``), in ``workdir/<name>/``, the data cached once for
+    """Each of :data:`FORECASTERS` named in ``names`` trained as ``config`` says (its ``model`` replaced, its
+    networks ``width`` times wider (:meth:`ForecasterConfig.widened`), with ``model_changes`` to its model's config,
+    e.g. ``decode_from``), in ``workdir/<name>/``, the data cached once for
     all; the models are copied to ``workdir/models/<name>``."""
     changes = model_changes or {}
     return _train_table(config, workdir, body, {name: dataclasses.replace(
-        config, model=FORECASTERS[name].replace_model(**changes)) for name in names}, resume, log, progress)
+        config, model=FORECASTERS[name].widened(width).replace_model(**changes)) for name in names}, resume, log, progress)
 
 
 def train_pair_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *,

@@ -60,6 +60,11 @@ class Config:
     """With --train: steps per model (default: dynamics.ForecastTrainConfig's 1000)."""
     train_batch: int | None = None
     """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
+    train_lr: float | None = None
+    """With --train: the peak learning rate (default: dynamics.ForecastTrainConfig's 5e-4; with --pairs 1e-4)."""
+    train_width: int = 1
+    """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
+    2 gives PHD+T the video model's sizes)."""
     train_names: tuple[str, ...] | None = None
     """With --train: the forecasters to train and score (default: all of dynamics.FORECASTERS, with --pairs of
     dynamics.PAIR_FORECASTERS)."""
@@ -92,12 +97,14 @@ class Config:
             raise ValueError(f"no data folder: pass --data-root or set $MVMOCAP_DATA_ROOT (a folder with {needs}/)")
         if not self.train and not self.models.is_dir():
             raise ValueError(f"--model-dir {self.models} is not a folder")
-        if self.pairs and self.model_changes():
-            raise ValueError("--train-decode-from and --train-extrapolation change the single-person forecasters; "
-                             "the pair forecasters decode as the JAT they start from")
+        if self.pairs and (self.model_changes() or self.train_width != 1):
+            raise ValueError("--train-decode-from, --train-extrapolation and --train-width change the single-person "
+                             "forecasters; the pair forecasters are the JAT they start from")
         if self.pairs and not self.start_from.is_dir():
             raise ValueError(f"--start-from {self.start_from} is not a folder")
-        for name in ("train_steps", "train_batch"):
+        if self.train_lr is not None and not self.train_lr > 0:
+            raise ValueError(f"--train-lr must be positive, got {self.train_lr}")
+        for name in ("train_steps", "train_batch", "train_width"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if self.train_extrapolation is not None and not 0.0 <= self.train_extrapolation <= 1.0:
@@ -135,7 +142,8 @@ class Config:
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
         stage = dataclasses.replace(config.stage, **{name: value for name, value in (
-            ("steps", self.train_steps), ("batch_size", self.train_batch)) if value is not None})
+            ("steps", self.train_steps), ("batch_size", self.train_batch), ("learning_rate", self.train_lr))
+            if value is not None})
         return dataclasses.replace(config, stage=stage)
 
     def model_changes(self) -> dict:
@@ -161,7 +169,7 @@ def main(config: Config) -> None:
         if config.train:
             models = train(config.train_config(training_files, validation_files), workdir, body,
                            names=config.names, resume=True, log=log, progress=config.progress,
-                           **({} if config.pairs else {"model_changes": config.model_changes()}))
+                           **({} if config.pairs else {"model_changes": config.model_changes(), "width": config.train_width}))
         else:
             models = load_forecasters(config.models, config.table)
         if config.pairs:

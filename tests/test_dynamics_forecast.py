@@ -189,6 +189,24 @@ def test_a_silent_decoder_repeats_or_extrapolates_the_last_pose(model, starts):
         assert np.allclose(predicted[0, 0, 0], slowed, atol=1e-4) == (extrapolation != 1.0), decode_from
 
 
+def test_widened_forecasters():
+    phdt = dynamics.FORECASTERS["PHD+T"]
+    wide = phdt.widened(2).phdt
+    video = dynamics.PHDTConfig()  # the video PHD+T's sizes
+    assert (wide.feature_dim, wide.joint_dim, wide.hmr_hidden, wide.channels_per_group) == (
+        video.feature_dim, video.joint_dim, video.hmr_hidden, video.channels_per_group)
+    assert (wide.decode_from, wide.extrapolation, wide.tcn_blocks) == (
+        phdt.phdt.decode_from, phdt.phdt.extrapolation, phdt.phdt.tcn_blocks)
+    assert phdt.widened(1) == phdt
+    jat = dynamics.FORECASTERS["JAT"].widened(3).jat
+    assert (jat.feature_dim, jat.temporal_dim, jat.joint_dim, jat.hmr_hidden, jat.bias_hidden) == (384, 384, 192, 768, 192)
+    count = lambda config: sum(p.size for p in jax.tree.leaves(nnx.state(  # noqa: E731
+        dynamics.initial_forecaster(config, 0), nnx.Param)))
+    assert count(phdt.widened(2)) > 3 * count(phdt)
+    with pytest.raises(ValueError, match="width factor must be >= 1, got 0"):
+        phdt.widened(0)
+
+
 def test_the_bias_ablation_starts_where_jat_starts():
     jat = dynamics.initial_forecaster(dynamics.FORECASTERS["JAT"], 0)
     ablation = dynamics.initial_forecaster(dynamics.FORECASTERS["JAT w/o bias"], 0)
@@ -415,7 +433,17 @@ def test_command_line_training_options(data_root, tmp_path):
     assert (train.stage.steps, train.stage.batch_size) == (4000, 64)
     assert train.speeds == (0.9, 1.1) and train.mirror
     assert train.stage.learning_rate == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.learning_rate
+    assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_lr=1e-4).train_config(
+        ("a.txt",), ("b.txt",)).stage.learning_rate == 1e-4
+    with unittest.mock.patch.object(dynamics_forecast, "train_forecasters", side_effect=KeyboardInterrupt) as train:
+        with pytest.raises(KeyboardInterrupt):
+            dynamics_forecast.main(dynamics_forecast.Config(out=tmp_path / "wide", data_root=data_root, train=True,
+                                                            train_width=2, train_extrapolation=0.75))
+    assert train.call_args.kwargs["width"] == 2
+    assert train.call_args.kwargs["model_changes"] == {"extrapolation": 0.75}
     for options, message in (({"train_steps": 0}, "--train-steps must be >= 1"),
+                             ({"train_width": 0}, "--train-width must be >= 1"),
+                             ({"train_lr": 0.0}, "--train-lr must be positive"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
                              ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
@@ -427,7 +455,8 @@ def test_command_line_training_options(data_root, tmp_path):
     assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
     with pytest.raises(ValueError, match="--train-names must name forecasters of"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
-    with pytest.raises(ValueError, match="the pair forecasters decode as the JAT they start from"):
-        dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_extrapolation=0.3)
+    for change in ({"train_extrapolation": 0.3}, {"train_width": 2}):
+        with pytest.raises(ValueError, match="the pair forecasters are the JAT they start from"):
+            dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, **change)
     with pytest.raises(ValueError, match="--start-from .* is not a folder"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, start_from=tmp_path / "none")
