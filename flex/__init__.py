@@ -46,6 +46,7 @@ from ._losses import LossWeights as LossWeights
 from ._model import averaged_monocular as averaged_monocular
 from ._model import flex_forward_kinematics as flex_forward_kinematics
 from ._model import parameter_count as parameter_count
+from ._model import predict as predict
 from ._model import CONFIGS as CONFIGS
 from ._model import Discriminator as Discriminator
 from ._model import Flex as Flex

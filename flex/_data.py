@@ -391,6 +391,12 @@ def sign_continuous(q: Float[ArrayLike, "frames *b 4"]) -> Float[Array, "frames 
     return q * sign[..., None]
 
 
+@jax.jit
+def _continuous_quaternions(matrices: Float[ArrayLike, "frames *b 3 3"]) -> Float[Array, "frames *b 4"]:
+    """The rotations as quaternions, sign-continuous in time (compiled: a sample makes a few such calls)."""
+    return sign_continuous(geometry.matrix_to_quaternion(matrices))
+
+
 def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", "tpose"] = "totem") -> Batch:
     """One sample (NumPy leaves, float64, no batch axis) drawn from ``key``; see the module docstring.
 
@@ -423,10 +429,9 @@ def make_sample(key: ArrayLike, config: DataConfig, rest_pose: Literal["totem", 
         h36m[:, _FEET, 2] < lowest + config.contact_height)
     flex20 = np.asarray(geometry.flex20_from_structri17(h36m))
     local = local_rotations(flex20, rest_pose)
-    rotations = np.asarray(sign_continuous(geometry.matrix_to_quaternion(local[:, np.asarray(FLEX20_ROTATING)])))
-    root_world = np.asarray(local[:, 0])
-    root_rotations = np.stack([np.asarray(sign_continuous(geometry.matrix_to_quaternion(cameras.R[k] @ root_world)))
-                               for k in range(config.views)])
+    rotations = np.asarray(_continuous_quaternions(local[:, np.asarray(FLEX20_ROTATING)]))
+    root_in_views = np.einsum("ktij,tjl->tkil", cameras.R, np.asarray(local[:, 0]))  # (T, K, 3, 3)
+    root_rotations = np.moveaxis(np.asarray(_continuous_quaternions(root_in_views)), 1, 0)
     return Batch(
         points_2d=points, confidences=confidences, joints=camera_joints - camera_joints[:, :, _ROOT:_ROOT + 1],
         root_position=np.asarray(root_position), bone_lengths=np.asarray(symmetric_bone_lengths(flex20)).mean(0),

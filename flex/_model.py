@@ -43,7 +43,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -60,7 +60,7 @@ from ._normalise import normalise_2d
 
 __all__ = [
     "CONFIGS", "Discriminator", "Flex", "FlexConfig", "FlexOutputs", "RotationDiscriminator", "averaged_monocular",
-    "flex_forward_kinematics", "parameter_count",
+    "flex_forward_kinematics", "parameter_count", "predict",
 ]
 
 NUM_ROTATING = len(FLEX20_ROTATING)
@@ -513,6 +513,21 @@ class Discriminator(nnx.Module):
         return self.joints(joint_deltas), self.root(root_deltas)[..., 0]
 
 
+def predict(
+    model: Flex, points_2d: Float[ArrayLike, "batch views frames joints 2"],
+    confidences: Float[ArrayLike, "batch views frames joints"],
+) -> FlexOutputs:
+    """``model(points_2d, confidences)``, deterministic and compiled: one compilation per model structure and input
+    shape serves every call (called directly, the network runs op by op, several times slower on a CPU)."""
+    graphdef, state = nnx.split(model)
+    return _predict(graphdef, state, jnp.asarray(points_2d), jnp.asarray(confidences))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _predict(graphdef: nnx.GraphDef, state: Any, points_2d: jax.Array, confidences: jax.Array) -> FlexOutputs:
+    return nnx.merge(graphdef, state)(points_2d, confidences)
+
+
 def averaged_monocular(model: Flex, batch: _data.Batch) -> jax.Array:
     """Table 5c's averaged monocular fusion: a 1-view ``model`` runs on each view alone; the views' shared joint
     rotations (sign-aligned quaternion mean) and bone lengths are averaged, each view keeps its own root rotation.
@@ -520,7 +535,7 @@ def averaged_monocular(model: Flex, batch: _data.Batch) -> jax.Array:
     if model.config.views != 1:
         raise ValueError(f"averaged monocular fusion needs a 1-view model, got {model.config.views} views")
     views = batch.points_2d.shape[1]
-    outputs = [model(batch.points_2d[:, k:k + 1], batch.confidences[:, k:k + 1]) for k in range(views)]
+    outputs = [predict(model, batch.points_2d[:, k:k + 1], batch.confidences[:, k:k + 1]) for k in range(views)]
     rotations = jnp.stack([o.rotations for o in outputs], axis=1)  # (B, K, T, 14, 4)
     sign = jnp.where(jnp.sum(rotations * rotations[:, :1], axis=-1, keepdims=True) < 0, -1.0, 1.0)
     mean_rotation = jnp.mean(sign * rotations, axis=1)

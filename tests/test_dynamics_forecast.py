@@ -279,7 +279,7 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
         target.write_text("\n".join(source.read_text().splitlines()[:400]) + "\n")
         files.append(str(target))
     # Decoding from the extrapolated pose, the motion at two speeds and mirrored (the augmentations).
-    model = dynamics.ForecasterConfig(jat=dataclasses.replace(TINY_JAT, decode_from="extrapolated"))
+    model = dynamics.ForecasterConfig(phdt=dataclasses.replace(TINY_PHDT, decode_from="extrapolated", tcn_blocks=1))
     config = dynamics.ForecastTrainConfig(
         tuple(files[:2]), tuple(files[2:]), model=model, speeds=(1.0, 1.25), mirror=True,
         stage=dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1), observed=6,
@@ -290,10 +290,10 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
         dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=False, log=kill_at(3), progress=False)
     resumed = dynamics.train_forecaster(config, tmp_path / "run", BODY, resume=True, progress=False)
     assert_same_parameters(resumed, full)
-    shutil.copytree(tmp_path / "full" / "model", tmp_path / "models" / "jat")
+    shutil.copytree(tmp_path / "full" / "model", tmp_path / "models" / "phdt")
     loaded = dynamics.load_forecasters(tmp_path / "models")
-    assert list(loaded) == ["JAT"]
-    assert_same_parameters(loaded["JAT"], full)
+    assert list(loaded) == ["PHD+T"]
+    assert_same_parameters(loaded["PHD+T"], full)
     with pytest.raises(FileNotFoundError, match="holds none of the forecasters"):
         dynamics.load_forecasters(tmp_path / "full")
 

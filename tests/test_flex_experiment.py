@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose
 
 from experiments import _cli, flex_synthetic
 from experiments.flex_study import ExperimentConfig
-from flex import CONFIGS, MODELS, RIG_MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch
+from flex import CONFIGS, MODELS, RIG_MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch, predict
 
 FRAMES = 24
 
@@ -29,11 +29,11 @@ def batch():
 
 def test_averaged_monocular_of_identical_views_is_the_monocular_prediction(batch):
     model = tiny(1)
-    # As many views as the batch: the fusion below runs op by op, and the second call reuses the first's ops.
+    # As many views as the batch: the fusion compiles the one-view model once (flex.predict), every call reuses it.
     same = batch._replace(points_2d=np.repeat(batch.points_2d[:, :1], 4, axis=1),
                           confidences=np.repeat(batch.confidences[:, :1], 4, axis=1))
     fused = averaged_monocular(model, same)
-    alone = model(batch.points_2d[:, :1], batch.confidences[:, :1]).joints_relative
+    alone = predict(model, batch.points_2d[:, :1], batch.confidences[:, :1]).joints_relative
     assert fused.shape == (2, 4, FRAMES, 20, 3)
     for view in range(4):
         assert_allclose(fused[:, view], alone[:, 0], atol=1e-6)

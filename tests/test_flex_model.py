@@ -19,7 +19,7 @@ import geometry
 from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_ROTATING
 from flex import (
     CONFIGS, DataConfig, Discriminator, Flex, FlexConfig, LossWeights, discriminator_loss, flex_forward_kinematics,
-    generator_loss, make_batch, parameter_count,
+    generator_loss, make_batch, parameter_count, predict,
 )
 
 CPU = CONFIGS["cpu"]
@@ -104,6 +104,14 @@ def test_jit_equals_eager(model, batch, outputs):
     eager = model(batch.points_2d, batch.confidences)
     for name, a, b in zip(outputs._fields, eager, outputs):
         assert_allclose(a, b, rtol=1e-4, atol=1e-5, err_msg=name)
+
+
+def test_predict_is_the_deterministic_call_compiled(model, batch, outputs):
+    predicted = predict(model, batch.points_2d, batch.confidences)
+    for name, a, b in zip(outputs._fields, predicted, outputs):
+        assert_allclose(a, b, rtol=1e-6, atol=1e-9, err_msg=name)
+    with pytest.raises(ValueError, match="points_2d must be"):
+        predict(model, batch.points_2d[:, :1], batch.confidences[:, :1])
 
 
 def test_fk_has_exactly_the_predicted_symmetric_bone_lengths(outputs):

@@ -131,11 +131,11 @@ def test_shelf_four_d_association_output_row(shelf_metrics, protocol):
 RELATIVE_TOLERANCE = 1e-3
 
 
-def _assert_table(measured: dict, expected: dict) -> None:
-    """Every pinned row within :data:`RELATIVE_TOLERANCE`; the message lists each row that is off."""
+def _assert_table(measured: dict, expected: dict, rel: float = RELATIVE_TOLERANCE) -> None:
+    """Every pinned row within ``rel``; the message lists each row that is off."""
     assert measured.keys() >= expected.keys(), sorted(set(expected) - set(measured))
     off = {key: (measured[key], value) for key, value in expected.items()
-           if measured[key] != pytest.approx(value, rel=RELATIVE_TOLERANCE)}
+           if measured[key] != pytest.approx(value, rel=rel)}
     assert not off, f"measured against pinned: {off}"
 
 
@@ -193,6 +193,9 @@ FLEX_QUICK = {
 # The same run's fixed rig (h36m_ring, 2 perturbed calibrations per scale), correlated 2D noise: (MPJPE mm,
 # acceleration error mm/frame^2) per (method, calibration), the perturbed rows' means over the draws. DLT with 3 %
 # is not pinned: one of its two draws sends a few joints far off (166 +- 94 mm), a figure no tolerance makes stable.
+# The rig's rows get RIG_TOLERANCE: on a 2-core VM without AVX-512 (2026-11-27) Structural Triangulation with 3 %
+# perturbed calibrations gave 61.835 mm and 132.387 mm/frame^2, 0.04 % and 0.10 % off these AVX-512 figures.
+RIG_TOLERANCE = 3e-3
 FLEX_QUICK_RIG = {
     ("FLEX (trained on h36m_ring)", "none"): (79.103, 23.639),
     ("FLEX (random rigs)", "none"): (72.756, 26.381),
@@ -216,7 +219,7 @@ def test_flex_synthetic_quick_on_the_shipped_models(tmp_path):
     rigs = {(r["noise_correlation"], r["method"], r["calibration"]): r for r in results["rigs"]}
     assert {rig for rig, _, _ in rigs} == {0.0, 0.9} and len(rigs) == len(results["rigs"]) == 2 * (2 + 2 * 3)
     _assert_table({(m, c): (r["mpjpe_mm"], r["acceleration_error_mm"]) for (noise, m, c), r in rigs.items()
-                   if noise > 0}, FLEX_QUICK_RIG)
+                   if noise > 0}, FLEX_QUICK_RIG, rel=RIG_TOLERANCE)
     for row in results["rigs"]:
         assert np.isfinite(row["root_error_mm"]) and row["root_error_mm"] > 0
         if "draws_mpjpe_mm" in row:

@@ -46,7 +46,7 @@ import geometry
 import mocap
 from association import track_bone_lengths
 from experiments.structri_study import ShelfConfig, ShelfScene, score_rows, solvable
-from flex import Flex, input_from_detections
+from flex import Flex, input_from_detections, predict
 from structri import ls_triangulation, structural_triangulation
 
 from ._synthetic import mean_and_spread
@@ -109,7 +109,7 @@ def flex_poses(model: Flex, scene: ShelfScene, views: list[int]) -> dict[int, np
         pixels, weight = _held(scene.pixels[track_index][:, :, views], weight)
         points, confidences = input_from_detections(np.moveaxis(pixels, 2, 0), np.moveaxis(weight, 2, 0),
                                                     geometry.SKEL19)  # (V, F, 17, 2), (V, F, 17)
-        joints = np.asarray(model(points[None], confidences[None]).joints_relative[0])  # (V, F, 20, 3)
+        joints = np.asarray(predict(model, points[None], confidences[None]).joints_relative[0])  # (V, F, 20, 3)
         poses[track_index] = np.asarray(geometry.to_shelf15(joints[..., _STRUCTRI17_IN_FLEX20, :], geometry.STRUCTRI17))
     return poses
 

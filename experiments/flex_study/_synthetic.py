@@ -47,7 +47,7 @@ from matplotlib.figure import Figure
 import mocap
 from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS,
                   Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex, make_batch,
-                  motion_metrics, normalise_2d, root_position_error, train, triangulation_baseline)
+                  motion_metrics, normalise_2d, predict, root_position_error, train, triangulation_baseline)
 from geometry import FLEX20, STRUCTRI17, remap_joints
 
 __all__ = ["ExperimentConfig", "RIG_NOISE_CORRELATION", "mean_and_spread", "plot_camera_poses", "run_experiment",
@@ -178,7 +178,7 @@ def _true_root(batch: Batch):
 def _flex_metrics(model: Flex, batch: Batch) -> tuple[dict[str, float], jax.Array]:
     """A FLEX model's metrics on a batch (with the global root error, its root made metric by the intrinsics)
     and its FLEX20 prediction."""
-    outputs = model(batch.points_2d, batch.confidences)
+    outputs = predict(model, batch.points_2d, batch.confidences)
     root = camera_root(outputs.root_position, outputs.centre, outputs.scale, batch.cameras.K)
     return (_metrics(outputs.joints_relative, batch.joints, FLEX20)
             | {"root_error_mm": float(root_position_error(root, _true_root(batch)))}), outputs.joints_relative
@@ -252,14 +252,14 @@ def run_experiment(config: ExperimentConfig, models: dict[str, Flex], out: str |
             if fusion == "late" or name not in models:
                 continue
             view_batch = _first_views(batch, views)
-            pred = models[name](view_batch.points_2d, view_batch.confidences).joints_relative
+            pred = predict(models[name], view_batch.points_2d, view_batch.confidences).joints_relative
             add(ablations, {"camera_motion": motion, "ablation": "views", "variant": f"{views} view(s)",
                             **_metrics(pred, view_batch.joints, FLEX20)})
         fusions = [("averaged monocular", "flex_1view", lambda: averaged_monocular(models["flex_1view"], batch)),
                    ("late fusion", "late_fusion_4views",
-                    lambda: models["late_fusion_4views"](batch.points_2d, batch.confidences).joints_relative),
+                    lambda: predict(models["late_fusion_4views"], batch.points_2d, batch.confidences).joints_relative),
                    ("early fusion (FLEX)", MAIN_MODEL, lambda: predictions[motion, "detected", "FLEX"])]
-        for variant, pred in ((variant, predict()) for variant, name, predict in fusions if name in models):
+        for variant, pred in ((variant, run()) for variant, name, run in fusions if name in models):
             add(ablations, {"camera_motion": motion, "ablation": "fusion", "variant": variant,
                             **_metrics(pred, batch.joints, FLEX20 if pred.shape[-2] == 20 else STRUCTRI17)})
 
