@@ -323,8 +323,9 @@ def train_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: ge
     e.g. ``decode_from``), in ``workdir/<name>/``, the data cached once for
     all; the models are copied to ``workdir/models/<name>``."""
     changes = model_changes or {}
-    return _train_table(config, workdir, body, {name: dataclasses.replace(
-        config, model=FORECASTERS[name].widened(width).replace_model(**changes)) for name in names}, resume, log, progress)
+    runs = {name: dataclasses.replace(config, model=FORECASTERS[name].widened(width).replace_model(**changes))
+            for name in names}
+    return _train_table(config, workdir, body, runs, resume, log, progress)
 
 
 def train_pair_forecasters(config: ForecastTrainConfig, workdir: str | Path, body: geometry.BodyModel, *,

@@ -169,7 +169,8 @@ def main(config: Config) -> None:
         if config.train:
             models = train(config.train_config(training_files, validation_files), workdir, body,
                            names=config.names, resume=True, log=log, progress=config.progress,
-                           **({} if config.pairs else {"model_changes": config.model_changes(), "width": config.train_width}))
+                           **({} if config.pairs else {"model_changes": config.model_changes(),
+                                                       "width": config.train_width}))
         else:
             models = load_forecasters(config.models, config.table)
         if config.pairs:

@@ -199,7 +199,8 @@ def test_widened_forecasters():
         phdt.phdt.decode_from, phdt.phdt.extrapolation, phdt.phdt.tcn_blocks)
     assert phdt.widened(1) == phdt
     jat = dynamics.FORECASTERS["JAT"].widened(3).jat
-    assert (jat.feature_dim, jat.temporal_dim, jat.joint_dim, jat.hmr_hidden, jat.bias_hidden) == (384, 384, 192, 768, 192)
+    widths = (jat.feature_dim, jat.temporal_dim, jat.joint_dim, jat.hmr_hidden, jat.bias_hidden)
+    assert widths == (384, 384, 192, 768, 192)
     count = lambda config: sum(p.size for p in jax.tree.leaves(nnx.state(  # noqa: E731
         dynamics.initial_forecaster(config, 0), nnx.Param)))
     assert count(phdt.widened(2)) > 3 * count(phdt)
