@@ -6,7 +6,8 @@ is how the shipped ones were made. The test motion comes from the held-out clips
 folder), or from ``--clips``: shipped clip names or any CMU motion files of one person (exp-map ``.txt`` of the
 CMU-Mocap benchmark, ``.amc`` beside its ``.asf``, ``.bvh`` in CMU's units), relative paths under ``--data-root``,
 or ``--test-expmap``: the benchmark's whole test split. Besides random rigs it evaluates the fixed rigs (``--rigs``,
-the paper's protocol) with the rig models where they exist. Writes OUT/results.json, results.md, skeletons.png,
+the paper's protocol) with the rig models where they exist, and the duplicate-joint ablation's pair
+(``flex.SKELETON_MODELS``) where it exists. Writes OUT/results.json, results.md, skeletons.png,
 mpjpe.png, rigs.png, log.jsonl and run.json, replacing OUT's previous outputs as a whole. Logic:
 :mod:`experiments.flex_study`.
 """
@@ -21,7 +22,7 @@ import tyro
 
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
-from flex import DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, load_models
+from flex import DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, SKELETON_MODELS, load_models
 
 QUICK = dict(sequences=4, rigs=("h36m_ring",), perturbation_draws=2)
 """What --quick changes (where the option is not given another value)."""
@@ -40,8 +41,9 @@ class Config:
     """Train the models of --train-names into OUT/models (resumably) and use them instead of --model-dir's."""
     train_names: tuple[str, ...] = tuple(MODELS)
     """With --train: the models to train, names of flex.MODELS (default: all of them), flex.RIG_MODELS
-    (flex_4views_h36m_ring, flex_4views_shelf) or flex.DETECTION_MODELS (flex_4views_shelf_detected, for
-    experiments.flex_shelf); the others come from --model-dir."""
+    (flex_4views_h36m_ring, flex_4views_shelf), flex.DETECTION_MODELS (flex_4views_shelf_detected, for
+    experiments.flex_shelf) or flex.SKELETON_MODELS (flex_4views_h36m_ring_tpose, flex_4views_h36m_ring_no_duplicates:
+    the duplicate-joint ablation); the others come from --model-dir."""
     train_steps: int | None = None
     """Training steps per model with --train (default 1500, --quick 100)."""
     train_batch: int = 16
@@ -71,7 +73,7 @@ class Config:
         for name in ("train_batch", "data_workers"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        known = [*MODELS, *RIG_MODELS, *DETECTION_MODELS]
+        known = [*MODELS, *RIG_MODELS, *DETECTION_MODELS, *SKELETON_MODELS]
         unknown = sorted(set(self.train_names) - set(known))
         if unknown or not self.train_names:
             raise ValueError(f"--train-names must name models of {known}, got {unknown}")

@@ -47,11 +47,13 @@ from ._model import averaged_monocular as averaged_monocular
 from ._model import flex_forward_kinematics as flex_forward_kinematics
 from ._model import parameter_count as parameter_count
 from ._model import predict as predict
+from ._model import tie_duplicates as tie_duplicates
 from ._model import CONFIGS as CONFIGS
 from ._model import Discriminator as Discriminator
 from ._model import Flex as Flex
 from ._model import FlexConfig as FlexConfig
 from ._model import FlexOutputs as FlexOutputs
+from ._model import INDEPENDENT_ROTATIONS as INDEPENDENT_ROTATIONS
 from ._model import RotationDiscriminator as RotationDiscriminator
 from ._normalise import normalise_2d as normalise_2d
 from ._normalise import normalise_view as normalise_view
@@ -62,6 +64,7 @@ from ._shipped import MAIN_MODEL as MAIN_MODEL
 from ._shipped import MODELS as MODELS
 from ._shipped import RIG_MODELS as RIG_MODELS
 from ._shipped import SHIPPED_MODELS as SHIPPED_MODELS
+from ._shipped import SKELETON_MODELS as SKELETON_MODELS
 from ._train import build_pool as build_pool
 from ._train import load_flex as load_flex
 from ._train import train as train

@@ -59,8 +59,8 @@ from . import _data
 from ._normalise import normalise_2d
 
 __all__ = [
-    "CONFIGS", "Discriminator", "Flex", "FlexConfig", "FlexOutputs", "RotationDiscriminator", "averaged_monocular",
-    "flex_forward_kinematics", "parameter_count", "predict",
+    "CONFIGS", "Discriminator", "Flex", "FlexConfig", "FlexOutputs", "INDEPENDENT_ROTATIONS", "RotationDiscriminator",
+    "averaged_monocular", "flex_forward_kinematics", "parameter_count", "predict", "tie_duplicates",
 ]
 
 NUM_ROTATING = len(FLEX20_ROTATING)
@@ -126,6 +126,10 @@ class FlexConfig:
     with the same attention just before the output layer."""
     rest_pose: Literal["totem", "tpose"] = "totem"
     """Rest pose of the FK skeleton (:data:`geometry.FLEX20_REST_DIRECTIONS`; "totem" as the released model)."""
+    duplicate_joints: bool = True
+    """False: the skeleton without App. C's duplicate joints, the paper's ablation (:func:`tie_duplicates`): the
+    spine turns with the pelvis and the shoulders with the neck. Needs ``rest_pose="tpose"``, whose thorax
+    children point their own ways at rest (the totem's all point up)."""
     discriminator_channels: int = 500
     discriminator_kernel: int = 4
     discriminator_frames: int = 24
@@ -150,6 +154,9 @@ class FlexConfig:
             raise ValueError(f"fusion must be 'early' or 'late', got {self.fusion!r}")
         if self.rest_pose not in FLEX20_REST_DIRECTIONS:
             raise ValueError(f"rest_pose must be one of {sorted(FLEX20_REST_DIRECTIONS)}, got {self.rest_pose!r}")
+        if not self.duplicate_joints and self.rest_pose != "tpose":
+            raise ValueError(f"duplicate_joints=False needs rest_pose 'tpose' (the totem's shoulders and neck point "
+                             f"the same way at rest), got {self.rest_pose!r}")
 
     @property
     def min_frames(self) -> int:
@@ -201,6 +208,23 @@ class FlexOutputs(NamedTuple):
     centre: Float[Array, "batch views 2"]
     """The input normalisation's origin in pixels (:func:`~flex.normalise_2d`); with ``scale`` and the intrinsics,
     :func:`~flex.camera_root` turns ``root_position`` into metres."""
+
+
+_SPINE_BASE, _THORAX, _L_THORAX, _R_THORAX = (
+    FLEX20_ROTATING.index(FLEX20.index(name)) for name in ("spine_base", "thorax", "l_thorax", "r_thorax"))
+INDEPENDENT_ROTATIONS = tuple(i for i in range(NUM_ROTATING) if i not in (_SPINE_BASE, _L_THORAX, _R_THORAX))
+"""Positions in :data:`geometry.FLEX20_ROTATING` of the 11 rotations that the skeleton without duplicate joints
+(:func:`tie_duplicates`) leaves free."""
+
+
+def tie_duplicates(rotations: Float[Array, "*b 14 4"]) -> Float[Array, "*b 14 4"]:
+    """The skeleton without FLEX's duplicate joints (paper App. C, the baseline skeleton of Shi et al.): the root
+    and the thorax each rigidly carry all their child bones. ``spine_base`` gets the identity (the spine turns
+    with the pelvis), ``l_thorax`` and ``r_thorax`` get ``thorax``'s local rotation (they share its parent and
+    rest offset, so the shoulders turn with the neck). Quaternions in :data:`geometry.FLEX20_ROTATING` order."""
+    rotations = rotations.at[..., _SPINE_BASE, :].set(jnp.array([1.0, 0.0, 0.0, 0.0], rotations.dtype))
+    thorax = rotations[..., _THORAX, :]
+    return rotations.at[..., _L_THORAX, :].set(thorax).at[..., _R_THORAX, :].set(thorax)
 
 
 def _unit_quaternion(q: Float[Array, "*b 4"]) -> Float[Array, "*b 4"]:
@@ -434,6 +458,8 @@ class Flex(nnx.Module):
         # real pose would be about a half turn away, where the position loss has no gradient.
         rotations = raw[..., : 4 * NUM_ROTATING].reshape(batch, frames, NUM_ROTATING, 4) + jnp.asarray(
             _standing_rotations(config.rest_pose), raw.dtype)[None, None]
+        if not config.duplicate_joints:
+            rotations = tie_duplicates(rotations)
         contacts = jax.nn.sigmoid(raw[..., 4 * NUM_ROTATING: 4 * NUM_ROTATING + 2])
         # The root rotation goes round every heading relative to a camera, a loop that no continuous map can
         # follow with quaternions (q and -q, Zhou et al. 2019): it is predicted in the continuous 6D form.
@@ -494,20 +520,23 @@ class RotationDiscriminator(nnx.Module):
 
 
 class Discriminator(nnx.Module):
-    """D (Eq. 5): D_j for the 14 shared joints, and D_0 applied to every view's root rotation."""
+    """D (Eq. 5): D_j for the 14 shared joints (the 11 free ones of a skeleton without duplicate joints:
+    :data:`INDEPENDENT_ROTATIONS`), and D_0 applied to every view's root rotation."""
 
     def __init__(self, config: FlexConfig, *, rngs: nnx.Rngs) -> None:
         self.delta = config.rotation_delta
+        self.judged = tuple(range(NUM_ROTATING)) if config.duplicate_joints else INDEPENDENT_ROTATIONS
         sizes = (config.discriminator_channels, config.discriminator_kernel, config.discriminator_frames)
-        self.joints = RotationDiscriminator(NUM_ROTATING, *sizes, rngs=rngs)
+        self.joints = RotationDiscriminator(len(self.judged), *sizes, rngs=rngs)
         self.root = RotationDiscriminator(1, *sizes, rngs=rngs)
 
     def __call__(
         self, rotations: Float[ArrayLike, "batch frames 14 4"], root_rotations: Float[ArrayLike, "batch views frames 4"]
-    ) -> tuple[Float[Array, "batch 14"], Float[Array, "batch views"]]:
-        """Scores in (0, 1) (1 = natural) of the temporal differences ``q[t + delta] - q[t]`` of unit quaternions."""
+    ) -> tuple[Float[Array, "batch judged"], Float[Array, "batch views"]]:
+        """Scores in (0, 1) (1 = natural) of the temporal differences ``q[t + delta] - q[t]`` of unit quaternions,
+        for the joints D judges (``judged``, positions in :data:`geometry.FLEX20_ROTATING`) and the roots."""
         delta = self.delta
-        rotations, root_rotations = jnp.asarray(rotations), jnp.asarray(root_rotations)
+        rotations, root_rotations = jnp.asarray(rotations)[:, :, list(self.judged)], jnp.asarray(root_rotations)
         joint_deltas = rotations[:, delta:] - rotations[:, :-delta]
         root_deltas = (root_rotations[:, :, delta:] - root_rotations[:, :, :-delta])[..., None, :]
         return self.joints(joint_deltas), self.root(root_deltas)[..., 0]

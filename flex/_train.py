@@ -24,7 +24,7 @@ import json
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -137,28 +137,29 @@ _AMSGRAD = optax.scale_by_amsgrad()
 the step's rates as values, so runs that differ only in their schedules share one compiled step."""
 
 
-def _pool_file(config: DataConfig, count: int, first_seed: int, cache_dir: Path) -> Path:
-    name = json.dumps([training.to_jsonable(config), count, first_seed], sort_keys=True)
+def _pool_file(config: DataConfig, count: int, first_seed: int, rest_pose: str, cache_dir: Path) -> Path:
+    name = json.dumps([training.to_jsonable(config), count, first_seed, rest_pose], sort_keys=True)
     return cache_dir / f"flex_pool_{hashlib.sha1(name.encode()).hexdigest()[:16]}.npz"
 
 
 def build_pool(config: DataConfig, count: int, first_seed: int, cache_dir: str | Path | None = None,
-               progress: bool = True, workers: int = 1) -> Batch:
+               progress: bool = True, workers: int = 1, rest_pose: Literal["totem", "tpose"] = "totem") -> Batch:
     """``count`` samples of ``config`` from seeds ``first_seed ...``, stacked (float32, cameras dropped: training
     needs none), cached in ``cache_dir`` when given. ``workers > 1`` builds them in that many CPU-only processes
-    (:func:`training.process_map`), the same samples in the same order."""
-    path = None if cache_dir is None else _pool_file(config, count, first_seed, Path(cache_dir))
+    (:func:`training.process_map`), the same samples in the same order. ``rest_pose`` must be the model's: the
+    real rotations that the discriminator sees are relative to it (:func:`~flex.make_sample`)."""
+    path = None if cache_dir is None else _pool_file(config, count, first_seed, rest_pose, Path(cache_dir))
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return Batch(**{name: stored[name] for name in stored.files}, cameras=None)
     if workers == 1:
-        samples = [make_sample(seed, config)._replace(cameras=None)
+        samples = [make_sample(seed, config, rest_pose)._replace(cameras=None)
                    for seed in tqdm.trange(first_seed, first_seed + count, disable=not progress, desc="flex samples")]
         pool = _stack(samples)
     else:
         bounds = np.linspace(first_seed, first_seed + count, min(count, 8 * workers) + 1).astype(int)
         pool = _concatenate(training.process_map(
-            _sample_range, [(config, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])], workers))
+            _sample_range, [(config, int(a), int(b), rest_pose) for a, b in zip(bounds[:-1], bounds[1:])], workers))
     if path is not None:
         arrays = {name: value for name, value in pool._asdict().items() if value is not None}
         training.write_atomically(path, lambda file: np.savez(file, **arrays))
@@ -173,14 +174,15 @@ def _concatenate(parts: list[Batch]) -> Batch:
     return jax.tree.map(lambda *leaves: np.concatenate(leaves), *parts)
 
 
-def _sample_range(config: DataConfig, first_seed: int, end_seed: int) -> Batch:
-    return _stack([make_sample(seed, config)._replace(cameras=None) for seed in range(first_seed, end_seed)])
+def _sample_range(config: DataConfig, first_seed: int, end_seed: int, rest_pose: str) -> Batch:
+    return _stack([make_sample(seed, config, rest_pose)._replace(cameras=None) for seed in range(first_seed, end_seed)])
 
 
 def _training_pool(config: TrainConfig, cache_dir: Path, progress: bool, workers: int) -> Batch:
     static = round(config.static_fraction * config.pool_size)
     return _concatenate([
-        build_pool(dataclasses.replace(config.data, camera_motion=motion), count, first, cache_dir, progress, workers)
+        build_pool(dataclasses.replace(config.data, camera_motion=motion), count, first, cache_dir, progress, workers,
+                   config.model_config.rest_pose)
         for motion, count, first in (("static", static, 0), ("dynamic", config.pool_size - static, static))
         if count])
 
@@ -255,7 +257,7 @@ def train(
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     pool = _training_pool(config, cache_dir, progress, data_workers)
     validation = build_pool(config.validation_data, config.validation_size, 1_000_000, cache_dir, progress,
-                            data_workers)
+                            data_workers, config.model_config.rest_pose)
 
     model_config = config.model_config
     rngs = nnx.Rngs(config.seed)

@@ -9,8 +9,9 @@ from flax import nnx
 from numpy.testing import assert_allclose
 
 from experiments import _cli, flex_synthetic
-from experiments.flex_study import ExperimentConfig
-from flex import CONFIGS, MODELS, RIG_MODELS, DataConfig, Flex, averaged_monocular, load_models, make_batch, predict
+from experiments.flex_study import ExperimentConfig, train_config
+from flex import (CONFIGS, MODELS, RIG_MODELS, SKELETON_MODELS, DataConfig, Flex, averaged_monocular, load_models,
+                  make_batch, predict)
 
 FRAMES = 24
 
@@ -97,3 +98,14 @@ def test_every_experiment_model_is_shipped():
     assert set(models) == set(MODELS) | {"flex_4views_h36m_ring"} and set(RIG_MODELS) >= {"flex_4views_h36m_ring"}
     for name, (views, fusion) in MODELS.items():
         assert (models[name].config.views, models[name].config.fusion) == (views, fusion)
+
+
+def test_the_duplicate_joint_ablation_trains_its_rig_model_with_the_tpose(tmp_path):
+    """The ablation's pair differs from each other only by the duplicate joints and from the rig model only by the
+    skeleton: the same samples (data config) and schedule."""
+    rig_run = train_config("flex_4views_h36m_ring", 1000, 0, tmp_path)
+    for name, (rig, duplicate_joints) in SKELETON_MODELS.items():
+        run = train_config(name, 1000, 0, tmp_path)
+        assert run.data == rig_run.data and run.data.rig == rig
+        assert run.model == dataclasses.replace(rig_run.model, rest_pose="tpose", duplicate_joints=duplicate_joints)
+        assert dataclasses.replace(run, model=rig_run.model) == rig_run

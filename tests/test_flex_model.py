@@ -19,7 +19,7 @@ import geometry
 from geometry import FLEX20, FLEX20_BONE_OF_JOINT, FLEX20_BONES, FLEX20_ROTATING
 from flex import (
     CONFIGS, DataConfig, Discriminator, Flex, FlexConfig, LossWeights, discriminator_loss, flex_forward_kinematics,
-    generator_loss, make_batch, parameter_count, predict,
+    INDEPENDENT_ROTATIONS, generator_loss, make_batch, parameter_count, predict,
 )
 
 CPU = CONFIGS["cpu"]
@@ -218,6 +218,40 @@ def test_config_validation():
         FlexConfig(channels=30, heads=4)
     with pytest.raises(ValueError, match="dropout"):
         FlexConfig(dropout=1.0)
+
+
+def _angles(joints, child_a: str, child_b: str, parent: str):
+    """Per pose, the angle (radians) between the bones parent -> child_a and parent -> child_b."""
+    a = joints[..., FLEX20.index(child_a), :] - joints[..., FLEX20.index(parent), :]
+    b = joints[..., FLEX20.index(child_b), :] - joints[..., FLEX20.index(parent), :]
+    cosine = np.sum(a * b, axis=-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+    return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
+def test_without_duplicate_joints_the_pelvis_and_the_thorax_are_rigid(model, batch, outputs):
+    """Paper App. C: without the duplicates the bones next to the root (hips, spine) and next to the neck
+    (shoulders, neck) keep their rest angles in every pose; with them (the module's model) they move independently."""
+    def spreads(joints):
+        return [np.ptp(_angles(joints, "l_hip", "spine", "mid_hip")),
+                np.ptp(_angles(joints, "l_shoulder", "neck_nose", "thorax")),
+                np.ptp(_angles(joints, "l_shoulder", "r_shoulder", "thorax"))]
+
+    assert min(spreads(np.asarray(outputs.joints_relative))) > 0.05
+    tied = Flex(dataclasses.replace(CPU, rest_pose="tpose", duplicate_joints=False), rngs=nnx.Rngs(0))
+    nnx.update(tied, nnx.state(model))  # the same random output layers: poses far from the rest pose
+    joints = np.asarray(predict(tied, batch.points_2d, batch.confidences).joints_relative)
+    assert max(spreads(joints)) < 1e-4
+    assert_allclose(_angles(joints, "l_shoulder", "neck_nose", "thorax"), np.pi / 2, atol=1e-4)
+
+
+def test_skeleton_without_duplicates_needs_the_tpose_and_has_d_judge_the_free_joints(batch):
+    with pytest.raises(ValueError, match="needs rest_pose 'tpose'"):
+        FlexConfig(duplicate_joints=False)
+    config = dataclasses.replace(CPU, rest_pose="tpose", duplicate_joints=False)
+    scores, _ = Discriminator(config, rngs=nnx.Rngs(1))(batch.rotations, batch.root_rotations)
+    assert scores.shape == (2, 11) and len(INDEPENDENT_ROTATIONS) == 11
+    assert [FLEX20_ROTATING[i] for i in sorted(set(range(14)) - set(INDEPENDENT_ROTATIONS))] == [
+        FLEX20.index(name) for name in ("spine_base", "l_thorax", "r_thorax")]
 
 
 def test_discriminator_is_per_joint(discriminator, batch):

@@ -14,6 +14,7 @@ from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose, assert_array_equal
 
 import flex
+import geometry
 import mocap
 import training
 from flex import _train
@@ -90,6 +91,24 @@ def test_pool_is_cached_and_float32(cache_dir):
     assert len(list(Path(cache_dir).glob("flex_pool_*.npz"))) >= 1
 
 
+def test_pool_rotations_are_relative_to_the_models_rest_pose(cache_dir, monkeypatch):
+    """The discriminator's real rotations: a T-pose model's pool holds them relative to the T-pose (the elbows' differ
+    from the totem's, the knees' do not), cached apart, and training builds its pools with the model's rest pose."""
+    totem = flex.build_pool(DATA, 2, 100, cache_dir, progress=False)
+    tpose = flex.build_pool(DATA, 2, 100, cache_dir, progress=False, rest_pose="tpose")
+    assert_array_equal(tpose.points_2d, totem.points_2d)
+    assert_allclose(tpose.rotations[0], flex.make_sample(100, DATA, "tpose").rotations, atol=1e-6)
+    knees, elbows = ([geometry.FLEX20_ROTATING.index(geometry.FLEX20.index(f"{side}_{joint}")) for side in "lr"]
+                     for joint in ("knee", "elbow"))
+    assert_allclose(tpose.rotations[..., knees, :], totem.rotations[..., knees, :], atol=1e-6)
+    assert not np.allclose(tpose.rotations[..., elbows, :], totem.rotations[..., elbows, :], atol=1e-3)
+    asked = []
+    monkeypatch.setattr(_train, "build_pool", lambda *args: asked.append(args[-1]) or totem)
+    config = _config(cache_dir, model=dataclasses.replace(TINY, views=2, rest_pose="tpose"))
+    _train._training_pool(config, cache_dir, False, 1)
+    assert asked and set(asked) == {"tpose"}
+
+
 def test_pool_built_in_chunks_for_workers_is_the_one_process_pool(monkeypatch):
     """The chunks the worker processes build, concatenated, are the one-process pool (the chunks are built here:
     training.process_map's processes are tested with JCSAT's scene building)."""
@@ -97,7 +116,8 @@ def test_pool_built_in_chunks_for_workers_is_the_one_process_pool(monkeypatch):
     monkeypatch.setattr(training, "process_map", lambda fn, args, workers: jobs.extend(args) or [fn(*a) for a in args])
     one = flex.build_pool(DATA, 3, 100, progress=False)
     two = flex.build_pool(DATA, 3, 100, progress=False, workers=2)
-    assert [(first, end) for _, first, end in jobs] == [(100, 101), (101, 102), (102, 103)]
+    assert [(first, end, rest_pose) for _, first, end, rest_pose in jobs] == [
+        (100, 101, "totem"), (101, 102, "totem"), (102, 103, "totem")]
     for a, b in zip(one[:-1], two[:-1]):
         assert_array_equal(a, b)
 

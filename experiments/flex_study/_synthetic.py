@@ -21,10 +21,11 @@ Methods:
 
 Fixed rigs (the paper's protocol; ``rigs``): samples of the same clips seen by one fixed rig
 (:func:`~flex.fixed_rig`: a Human3.6M-like ring, the real Shelf cameras), with white and with temporally correlated
-2D noise (``noise_correlation``); FLEX trained on that rig (:data:`~flex.RIG_MODELS`) and the random-rig model
-against DLT and Structural Triangulation with the exact calibration and with ``perturbation_draws`` perturbed
-calibrations per scale, each one draw for the whole rig (a rig calibrated once; every test sequence sees the same
-error), reported as the mean and standard deviation over the draws.
+2D noise (``noise_correlation``); FLEX trained on that rig (:data:`~flex.RIG_MODELS`; where present, the
+duplicate-joint ablation's pair of :data:`~flex.SKELETON_MODELS`) and the random-rig model against DLT and Structural
+Triangulation with the exact calibration and with ``perturbation_draws`` perturbed calibrations per scale, each one
+draw for the whole rig (a rig calibrated once; every test sequence sees the same error), reported as the mean and
+standard deviation over the draws.
 
 The models (:data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`) are read from ``model_dir`` (default:
 :data:`~flex.SHIPPED_MODELS`) or trained by :func:`train_models`, which is how the shipped ones were made.
@@ -45,9 +46,9 @@ from jaxtyping import ArrayLike
 from matplotlib.figure import Figure
 
 import mocap
-from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, TEST_CLIPS, VALIDATION_CLIPS,
-                  Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex, make_batch,
-                  motion_metrics, normalise_2d, predict, root_position_error, train, triangulation_baseline)
+from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, SKELETON_MODELS, TEST_CLIPS,
+                  VALIDATION_CLIPS, Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex,
+                  make_batch, motion_metrics, normalise_2d, predict, root_position_error, train, triangulation_baseline)
 from geometry import FLEX20, STRUCTRI17, remap_joints
 
 __all__ = ["ExperimentConfig", "RIG_NOISE_CORRELATION", "mean_and_spread", "plot_camera_poses", "run_experiment",
@@ -118,20 +119,28 @@ class ExperimentConfig:
 
 def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = (), *,
                  batch_size: int = 16, pool_size: int | None = None) -> TrainConfig:
-    """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS` or
-    :data:`~flex.DETECTION_MODELS`: the ``"small"``
+    """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`,
+    :data:`~flex.DETECTION_MODELS` or :data:`~flex.SKELETON_MODELS`: the ``"small"``
     config on the training clips plus ``extra_clips`` (motion files), ``batch_size`` windows per step from a pool
-    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig or detection model sees
-    only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION`."""
+    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig, detection or skeleton
+    model sees only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION` (a skeleton
+    model's samples are its rig model's)."""
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
-    if name in RIG_MODELS or name in DETECTION_MODELS:
+    if name in RIG_MODELS or name in DETECTION_MODELS or name in SKELETON_MODELS:
         detector = mocap.DetectorConfig(noise_correlation=RIG_NOISE_CORRELATION)
-        data = DataConfig(views=_TEST_VIEWS, frames=base.data.frames, clips=clips, detector=detector,
-                          **({"rig": RIG_MODELS[name]} if name in RIG_MODELS else
-                             {"rig": DETECTION_MODELS[name], "input_joints": "detected"}))
+        model = dataclasses.replace(CONFIGS["small"], views=_TEST_VIEWS)
+        if name in RIG_MODELS:
+            extra = {"rig": RIG_MODELS[name]}
+        elif name in DETECTION_MODELS:
+            extra = {"rig": DETECTION_MODELS[name], "input_joints": "detected"}
+        else:
+            rig, duplicate_joints = SKELETON_MODELS[name]
+            extra = {"rig": rig}
+            model = dataclasses.replace(model, rest_pose="tpose", duplicate_joints=duplicate_joints)
+        data = DataConfig(views=_TEST_VIEWS, frames=base.data.frames, clips=clips, detector=detector, **extra)
         return TrainConfig(
-            model=dataclasses.replace(CONFIGS["small"], views=_TEST_VIEWS), steps=steps, seed=seed,
+            model=model, steps=steps, seed=seed,
             cache_dir=str(cache_dir), data=data, pool_size=pool_size or 4096, static_fraction=1.0,
             batch_size=batch_size, validation_data=dataclasses.replace(data, clips=VALIDATION_CLIPS))
     views, fusion = MODELS[name]
@@ -146,8 +155,8 @@ def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple
                  extra_clips: tuple[str, ...] = (), batch_size: int = 16, pool_size: int | None = None,
                  data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
                  progress: bool = True) -> dict[str, Flex]:
-    """Train the models ``names`` (of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS` and :data:`~flex.DETECTION_MODELS`)
-    in ``workdir/<name>`` for
+    """Train the models ``names`` (of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`, :data:`~flex.DETECTION_MODELS`
+    and :data:`~flex.SKELETON_MODELS`) in ``workdir/<name>`` for
     ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints; a finished model folder
     ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships. The sample pools are cached once for all models
     in ``workdir/data_cache``, built by ``data_workers`` processes."""
@@ -295,7 +304,10 @@ def _evaluate_fixed_rigs(config: ExperimentConfig, models: dict[str, Flex], add:
                               detector=mocap.DetectorConfig(noise_correlation=correlation))
             batch = make_batch(jax.random.fold_in(jax.random.key(config.seed), 2 + index), data, config.sequences)
             setting = {"rig": rig, "noise_correlation": correlation}
-            for label, name in ((f"FLEX (trained on {rig})", rig_model[rig]), ("FLEX (random rigs)", MAIN_MODEL)):
+            flex_models = [(f"FLEX (trained on {rig})", rig_model[rig]), ("FLEX (random rigs)", MAIN_MODEL)] + [
+                (f"FLEX (trained on {rig}, T-pose rest, {'with' if duplicates else 'no'} duplicate joints)", name)
+                for name, (skeleton_rig, duplicates) in SKELETON_MODELS.items() if skeleton_rig == rig]
+            for label, name in flex_models:
                 if name in models:
                     add({**setting, "method": label, "calibration": "none", **_flex_metrics(models[name], batch)[0]})
             for method, label in (("dlt", "DLT"), ("structural", "Structural Triangulation")):
