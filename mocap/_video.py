@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import jax
 import numpy as np
-from jaxtyping import Float, UInt8
+from jaxtyping import Array, ArrayLike, Float, UInt8
 
 import geometry
 from geometry import BodyModel, Camera
@@ -166,15 +166,23 @@ def _random_path(centre: np.ndarray, num_frames: int, fps: float, config: VideoC
     return _CameraPath(centre, azimuth, distance_change, float(height), shift, pan_tilt)
 
 
+@jax.jit
+def _looking_and_turning(eye: Float[ArrayLike, "T 3"], target: Float[ArrayLike, "3"],
+                         turn: Float[ArrayLike, "T 3"]) -> tuple[Float[Array, "T 3 3"], Float[Array, "T 3 3"]]:
+    """The rotations looking from each ``eye`` at ``target``, and the axis-angle ``turn`` rotations: compiled, as
+    :func:`_fitted_distance` asks for them up to 80 times (op by op they took most of a video's camera fitting)."""
+    return jax.vmap(geometry.look_at, in_axes=(0, None))(eye, target), geometry.axis_angle_to_matrix(turn)
+
+
 def _extrinsics(path: _CameraPath, distance: float) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera ``R (T, 3, 3)`` and ``t (T, 3)`` of the path started at ``distance`` metres."""
     horizontal = distance + path.distance_change
     eye = np.stack([path.centre[0] + horizontal * np.cos(path.azimuth),
                     path.centre[1] + horizontal * np.sin(path.azimuth),
                     np.full(len(horizontal), path.height)], axis=-1) + path.shift
-    upright = np.asarray(jax.vmap(geometry.look_at, in_axes=(0, None))(eye, path.centre), np.float64)
     pan, tilt = path.pan_tilt[:, 0], path.pan_tilt[:, 1]
-    turn = np.asarray(geometry.axis_angle_to_matrix(np.stack([tilt, pan, np.zeros_like(pan)], -1)), np.float64)
+    upright, turn = (np.asarray(r, np.float64) for r in _looking_and_turning(
+        eye, path.centre, np.stack([tilt, pan, np.zeros_like(pan)], -1)))
     rotation = turn @ upright
     return rotation, -np.einsum("tij,tj->ti", rotation, eye)
 

@@ -256,8 +256,15 @@ def _apply_sca_operator(tree, D_inv, lambdas: list, first: Float[Array, "bones 3
 _UNROLLED_MAX_SIZE = 24
 """Largest system :func:`_solve_symmetric` eliminates unrolled (STRUCTRI17 has 16 bones, BODY25 24)."""
 
+_UNROLLED_MAX_STEPS = 3
+"""Most SCA steps whose multiplier systems the first-order path eliminates unrolled. Beyond, the ``2^N - 1``
+applications of ``A^-1`` dominate the run time and each unrolled elimination only adds compile time: SKEL19, N = 9,
+5 views, side by side on the 2-core VM (2026-11-27), the same time per frame and a compile of 4.3 s instead of
+8.3 s (300 frames, one stream); at N = 3 (STRUCTRI17, 4 views, 10k frames) unrolled ran 1.45x faster."""
 
-def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F"]) -> Float[Array, "n *cols F"]:
+
+def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F"],
+                     unrolled: bool = True) -> Float[Array, "n *cols F"]:
     """Gaussian elimination without pivoting, element-wise over frames.
 
     The systems are (nearly) symmetric positive definite (``B^T T B`` with T a first-order
@@ -270,9 +277,9 @@ def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F
     Up to ``_UNROLLED_MAX_SIZE`` unknowns (SCA's bones x bones systems) the elimination is unrolled
     with static slices, each step on the shrinking trailing block only: ST + SCA ran 1.25x faster
     than with the loop (STRUCTRI17, 4 views, 10k frames, side by side). Larger systems (the exact
-    variant's 3 bones x 3 bones) take :func:`_solve_symmetric_loop`: unrolled, they compiled for 16 s
-    instead of 2 s."""
-    if system.shape[0] > _UNROLLED_MAX_SIZE:
+    variant's 3 bones x 3 bones), and any system with ``unrolled=False``, take :func:`_solve_symmetric_loop`:
+    unrolled, the exact variant's compiled for 16 s instead of 2 s."""
+    if not unrolled or system.shape[0] > _UNROLLED_MAX_SIZE:
         return _solve_symmetric_loop(system, rhs)
     n = system.shape[0]
     columns = rhs.reshape(n, -1, rhs.shape[-1])
@@ -345,6 +352,7 @@ def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[
     Returns ``(b, sum lambda, ok)`` of the N-step run and of a single ST step (which shares the
     first step's multiplier system: same ``b0``, final targets)."""
     b, lambdas, solvable = b0, [], jnp.array(True)
+    unrolled = n_steps <= _UNROLLED_MAX_STEPS
     for step in range(1, n_steps + 1):
         rhs = jnp.sum(b**2, axis=1) - _target_sq(b, lengths, step, n_steps, schedule)
         columns = _apply_a_inverse_to_bone_columns(tree, D_inv, b)  # A^-1 diag(b) D31, (n, 3, n, F)
@@ -361,10 +369,10 @@ def _sca_first_order(tree, D_inv, b0: Float[Array, "bones 3 F"], lengths: Float[
         system = 0.5 * (system + jnp.swapaxes(system, 0, 1))
         if step == 1:  # one elimination for both right-hand sides
             both = jnp.stack([rhs, jnp.broadcast_to(jnp.sum(b**2, axis=1) - lengths**2, rhs.shape)], axis=1)
-            lam, lam_single = jnp.moveaxis(_solve_symmetric(system, both) / 4.0, 1, 0)
+            lam, lam_single = jnp.moveaxis(_solve_symmetric(system, both, unrolled) / 4.0, 1, 0)
             single = (b0 - 2.0 * update(lam_single), lam_single, jnp.all(jnp.isfinite(lam_single), axis=0))
         else:
-            lam = _solve_symmetric(system, rhs) / 4.0
+            lam = _solve_symmetric(system, rhs, unrolled) / 4.0
         solvable &= jnp.all(jnp.isfinite(lam), axis=0)
         b = b - 2.0 * update(lam)
         lambdas.append(lam)
@@ -637,14 +645,30 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
                         out)
 
 
+def _padded_frames(frames: int, layout: tuple[int, int]) -> int:
+    """The frame count :func:`_solve` compiles for: a power of two below one round of chunks (``chunk x streams``
+    frames), else whole rounds. Inputs of nearby lengths (a tracked person's frames, a clip) share one compilation,
+    at most doubling the work of a short input; from one chunk up the chunks, and so each frame's arithmetic, are
+    those of the unpadded input."""
+    round_frames = layout[0] * layout[1]
+    if frames >= round_frames:
+        return -(-frames // round_frames) * round_frames
+    return min(1 << max(frames - 1, 0).bit_length(), round_frames)
+
+
 def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_steps=1,
            schedule="length", degenerate_rcond=0.0, lagrangian=(), max_length_error=float("inf"),
            multiplier_system="current", layout=(_CHUNK_FRAMES, _STREAMS)):
     frames, args, axes = _prepare(points_2d, cameras, bone_lengths, skeleton, confidences)
+    flat = args[0].shape[0]
+    pad = _padded_frames(flat, layout) - flat if flat else 0
+    if pad:  # repeat the last frame: finite filler, dropped below
+        args = tuple(jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if axis == 0 else x
+                     for x, axis in zip(args, axes))
     out = _solve_flat(*args, axes=axes, skeleton=skeleton, method=method, n_steps=n_steps,
                       schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian,
                       max_length_error=max_length_error, multiplier_system=multiplier_system, layout=layout)
-    return jax.tree.map(lambda x: x.reshape(frames + x.shape[1:]), out)
+    return jax.tree.map(lambda x: x[:flat].reshape(frames + x.shape[1:]), out)
 
 
 def structural_triangulation(

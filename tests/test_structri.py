@@ -11,7 +11,7 @@ from experiments.structri_study import VirtualConfig, run_virtual
 from structri import (Status, constrained_reference, estimate_bone_lengths, lagrangian_triangulation,
                       lem_triangulation, ls_triangulation, reduced_objective, reduced_problem,
                       structural_triangulation)
-from structri._solver import StructriResult, _solve, _solve_symmetric
+from structri._solver import StructriResult, _padded_frames, _solve, _solve_flat, _solve_symmetric
 from structri.numpy_reference import numpy_lem_triangulation, numpy_structural_triangulation_frames
 
 # H36M-like constant lengths in metres: thigh/shin 0.45, upper arm 0.28, forearm 0.25.
@@ -67,7 +67,7 @@ def scene():
 
 def test_matches_numpy_reference(scene):
     poses, rig, points, P = scene
-    for steps in (1, 3):
+    for steps in (1, 3, 5):  # 5 > _UNROLLED_MAX_STEPS: the looped eliminations
         ours = structural_triangulation(points, rig, LENGTHS, n_steps=steps)
         ref = numpy_structural_triangulation_frames(points, P, LENGTHS, n_steps=steps)
         np.testing.assert_allclose(ours.pose, ref, rtol=0, atol=1e-6 * np.max(np.abs(ref)))
@@ -134,6 +134,24 @@ def test_chunks_solved_side_by_side_equal_one_chunk(scene):
     for name in StructriResult._fields:
         np.testing.assert_allclose(getattr(side_by_side, name), getattr(whole, name), rtol=1e-12, atol=1e-14,
                                    err_msg=name)
+
+
+def test_inputs_of_nearby_lengths_share_one_compilation(scene):
+    """Frames are padded to a power of two below one round of chunks, else to whole rounds: 5 and 7 frames run
+    one compiled program, and each frame's result is the one it gets in a longer input."""
+    _, _, points, P = scene
+    assert [_padded_frames(f, (160, 2)) for f in (1, 5, 8, 9, 256, 257, 320, 321, 900)] == [
+        1, 8, 8, 16, 256, 320, 320, 640, 960]
+    def solve(frames):
+        return _solve(points[:frames], P, LENGTHS, STRUCTRI17, None, "st", 2, degenerate_rcond=1e-3)
+    longest = solve(FRAMES)
+    compiled = _solve_flat._cache_size()
+    five, seven = solve(5), solve(7)
+    assert _solve_flat._cache_size() == compiled + 1
+    for part in (five, seven):
+        for name in StructriResult._fields:
+            np.testing.assert_allclose(getattr(part, name), getattr(longest, name)[:len(part.pose)], rtol=1e-9,
+                                       atol=1e-12, err_msg=name)
 
 
 @pytest.mark.parametrize("pattern,views", [("round", 3), ("half", 2)])
@@ -368,17 +386,18 @@ def test_no_lapack_in_batched_solvers(scene):
         assert "lapack" not in jax.jit(solver).lower(points).as_text().lower(), name
 
 
-@pytest.mark.parametrize("size", [16, 30])
-def test_frames_last_elimination_matches_numpy(size):
-    """Both elimination paths (unrolled up to ``_UNROLLED_MAX_SIZE`` unknowns, looped above) solve
-    SPD systems with several right-hand sides, frames on the last axis."""
+@pytest.mark.parametrize(("size", "unrolled"), [(16, True), (16, False), (30, True)])
+def test_frames_last_elimination_matches_numpy(size, unrolled):
+    """Both elimination paths (unrolled up to ``_UNROLLED_MAX_SIZE`` unknowns unless ``unrolled=False``, looped
+    above) solve SPD systems with several right-hand sides, frames on the last axis."""
     rng = np.random.default_rng(size)
     frames = 5
     factor = rng.normal(size=(frames, size, size))
     system = factor @ np.swapaxes(factor, 1, 2) + size * np.eye(size)
     rhs = rng.normal(size=(frames, size, 2))
     # Compiled, as the solvers run it (eager, the unrolled path dispatches thousands of tiny ops one by one).
-    ours = jax.jit(_solve_symmetric)(jnp.moveaxis(jnp.asarray(system), 0, -1), jnp.moveaxis(jnp.asarray(rhs), 0, -1))
+    ours = jax.jit(_solve_symmetric, static_argnums=2)(
+        jnp.moveaxis(jnp.asarray(system), 0, -1), jnp.moveaxis(jnp.asarray(rhs), 0, -1), unrolled)
     np.testing.assert_allclose(np.moveaxis(np.asarray(ours), -1, 0), np.linalg.solve(system, rhs), rtol=1e-10)
 
 
