@@ -258,9 +258,8 @@ _UNROLLED_MAX_SIZE = 24
 
 _UNROLLED_MAX_STEPS = 3
 """Most SCA steps whose multiplier systems the first-order path eliminates unrolled. Beyond, the ``2^N - 1``
-applications of ``A^-1`` dominate the run time and each unrolled elimination only adds compile time: SKEL19, N = 9,
-5 views, side by side on the 2-core VM (2026-11-27), the same time per frame and a compile of 4.3 s instead of
-8.3 s (300 frames, one stream); at N = 3 (STRUCTRI17, 4 views, 10k frames) unrolled ran 1.45x faster."""
+applications of ``A^-1`` dominate the run time and each unrolled elimination only adds compile time (docs/structri.md,
+"Speed": ``experiments.bench_structri --n-steps 9``, compilation 2.1x faster, the same frames per second)."""
 
 
 def _solve_symmetric(system: Float[Array, "n n F"], rhs: Float[Array, "n *cols F"],
