@@ -2,7 +2,8 @@
 
 ``geometry.disable_faulty_cpu_fusion()`` is called before any computation: it sets the XLA flag that must be in the
 environment before jax initialises its backend (see ``geometry/_jax_guard.py`` and ``tests/test_jax_regression.py``);
-subprocesses and notebook kernels started by the tests inherit it.
+subprocesses and notebook kernels started by the tests inherit it, and the test processes compile with
+``tests/_compile_flags.py``'s flags (a shorter suite; commands pinned as a user runs them go without them).
 """
 
 import gc
@@ -10,6 +11,8 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+
+from _compile_flags import with_fast_compilation
 
 # One persistent compilation cache for the whole run, set in the environment before jax starts so that the
 # subprocesses (two-device runs) and notebook kernels share it: each module's compiled programs are dropped
@@ -20,6 +23,8 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _COMPILED
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+# Compile for a short suite (tests/_compile_flags.py says why and what keeps the defaults); inherited like the above.
+os.environ["XLA_FLAGS"] = with_fast_compilation(os.environ.get("XLA_FLAGS", ""))
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

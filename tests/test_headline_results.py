@@ -11,7 +11,6 @@ read: the experiment code behind the entry points may move without touching this
 """
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -20,14 +19,17 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
+from _compile_flags import user_environment
+
 REPO = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.slow
 
 
 def _run(module: str, *args: str | Path, out: Path) -> None:
-    """``python -m experiments.MODULE ARGS --out OUT`` from the repository root; fails with its last output lines."""
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    """``python -m experiments.MODULE ARGS --out OUT`` from the repository root, with XLA's default compilation
+    (tests/_compile_flags.py); fails with its last output lines."""
+    env = user_environment(PYTHONPATH=str(REPO))
     run = subprocess.run([sys.executable, "-m", f"experiments.{module}", *map(str, args), "--out", str(out)],
                          cwd=REPO, env=env, capture_output=True, text=True)
     if run.returncode != 0:

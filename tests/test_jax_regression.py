@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from _compile_flags import FAST_COMPILE_FLAGS, user_environment
 from geometry import triangulate
 from geometry._jax_guard import YNN_FUSION_OFF as WORKAROUND
 from geometry._triangulate import _triangulate_flat
@@ -35,8 +36,9 @@ sys.exit(0 if error < 1e-4 else 1)
 
 
 def _without_workaround() -> dict[str, str]:
-    flags = " ".join(flag for flag in os.environ.get("XLA_FLAGS", "").split() if flag != WORKAROUND)
-    return {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+    """The project's configuration (tests/_compile_flags.py) without the workaround."""
+    env = user_environment(JAX_PLATFORMS="cpu")
+    return {**env, "XLA_FLAGS": " ".join(flag for flag in env["XLA_FLAGS"].split() if flag != WORKAROUND)}
 
 
 def _run(code: str, env: dict[str, str]) -> subprocess.CompletedProcess:
@@ -79,7 +81,7 @@ def test_disable_faulty_cpu_fusion_sets_the_flag_only_before_jax_computes():
     env = _without_workaround()
     done = _run(after, env)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["False", repr(env["XLA_FLAGS"])]
+    assert done.stdout.strip().split(maxsplit=1) == ["False", repr(env["XLA_FLAGS"])]
 
 
 # Pretends jaxlib 0.10.2 is installed, then imports geometry.
@@ -99,6 +101,14 @@ def test_geometry_refuses_faulty_jaxlib_without_the_flag():
     env = _without_workaround()
     env["XLA_FLAGS"] = f"{env['XLA_FLAGS']} {WORKAROUND}"
     assert _run(_AS_IF_FAULTY_JAXLIB, env).returncode == 0
+
+
+def test_tests_compile_fast_and_user_commands_as_users_run_them():
+    """The suite compiles with tests/_compile_flags.py's flags; the commands run as a user runs them keep the
+    project's configuration, the workaround included, without them."""
+    assert set(FAST_COMPILE_FLAGS) <= set(os.environ["XLA_FLAGS"].split())
+    user_flags = user_environment()["XLA_FLAGS"].split()
+    assert WORKAROUND in user_flags and not set(FAST_COMPILE_FLAGS) & set(user_flags)
 
 
 def test_repro_is_exact_with_the_project_configuration():
