@@ -76,6 +76,7 @@ class EvalConfig:
         return self.observed + self.horizon
 
 
+@partial(jax.jit, static_argnums=1)
 def zero_motion(observed: Observation, horizon: int) -> Rollout:
     """ZeroMotion: the last observed frame, repeated ``horizon`` times."""
     repeat = lambda x: jnp.repeat(x[..., -1:, :], horizon, axis=-2)  # noqa: E731
@@ -122,20 +123,23 @@ def forecast_scenes(model: nnx.Module, body: geometry.BodyModel, features: Float
                     boxes: Float[ArrayLike, "S N T 4"], K: Float[ArrayLike, "S N T 3 3"],
                     present: Bool[ArrayLike, "S N"], observed: int, horizon: int) -> tuple[Observation, Rollout]:
     """``model``'s (PHD+T or a transformer) reconstruction of the first ``observed`` frames of each scene and its
-    ``horizon`` frames after them, in batches of :data:`SCENE_BATCH` scenes through one compilation per model and
-    scene shape (the evaluation's windows and the strip of ``experiments.dynamics`` share it)."""
+    ``horizon`` frames after them (NumPy arrays), in batches of :data:`SCENE_BATCH` scenes through one compilation
+    per model and scene shape (the evaluation's windows and the strip of ``experiments.dynamics`` share it).
+
+    The batches are padded and the outputs cut and joined in NumPy: done with jax arrays, each of those small
+    operations compiled a program of its own for every new shape."""
     graphdef, state = nnx.split(model)
-    features, boxes, K, present = map(jnp.asarray, (features, boxes, K, present))
+    features, boxes, K, present = (np.asarray(x) for x in (features, boxes, K, present))
     parts = []
     for first in range(0, len(features), SCENE_BATCH):
         size = min(SCENE_BATCH, len(features) - first)
-        pad = lambda x, fill=None: jnp.concatenate(  # noqa: E731  (repeat the batch's first scene, or fill)
-            [x[first:first + size], jnp.repeat(x[first:first + 1] if fill is None else jnp.full_like(
+        pad = lambda x, fill: np.concatenate(  # noqa: E731  (the batch's first scene repeated, or fill)
+            [x[first:first + size], np.repeat(x[first:first + 1] if fill is None else np.full_like(
                 x[first:first + 1], fill), SCENE_BATCH - size, axis=0)])
-        outputs = _observe_and_roll_out(graphdef, state, body, observed, horizon, pad(features), pad(boxes), pad(K),
-                                        pad(present, False))
-        parts.append(jax.tree.map(lambda x: x[:size], outputs))
-    return jax.tree.map(lambda *x: jnp.concatenate(x), *parts)
+        outputs = _observe_and_roll_out(graphdef, state, body, observed, horizon, pad(features, None),
+                                        pad(boxes, None), pad(K, None), pad(present, False))
+        parts.append(jax.tree.map(lambda x: np.asarray(x)[:size], outputs))
+    return jax.tree.map(lambda *x: np.concatenate(x), *parts)
 
 
 def predict_windows(body: geometry.BodyModel, models: Mapping[str, nnx.Module], features: np.ndarray,

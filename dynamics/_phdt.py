@@ -207,7 +207,7 @@ class PHDT(nnx.Module):
             return (window, root, before, params), (following, root, params)
 
         carry = (window, observed.root[..., -1, :], last_frame(observed.params, 2), last_frame(observed.params))
-        _, (predicted, roots, decoded) = jax.lax.scan(advance, carry, length=horizon, unroll=True)
+        _, (predicted, roots, decoded) = jax.lax.scan(advance, carry, length=horizon)
         predicted, roots = jnp.moveaxis(predicted, 0, -2), jnp.moveaxis(roots, 0, -2)
         temporal = predicted[..., :self.config.feature_dim]
         if decode_from != "mean":

@@ -87,24 +87,24 @@ def write_strip(backbone, models: Mapping[str, nnx.Module], body: geometry.BodyM
     video = mocap.synthesise_video(motion, body, config.data.video, rng)
     tracks = video_tracks(video, config.data, rng)
     scene = (1, clip.num_people, config.length)
-    features = jnp.asarray(compute_features(backbone, tracks.crops)).reshape(*scene, -1)
-    rows = jax.tree.map(lambda x: jnp.asarray(x).reshape(*scene, *x.shape[1:]),
+    features = np.asarray(compute_features(backbone, tracks.crops)).reshape(*scene, -1)
+    rows = jax.tree.map(lambda x: np.asarray(x).reshape(*scene, *x.shape[1:]),
                         tracks._replace(crops=np.zeros(tracks.num_frames, np.uint8)))
     T = config.observed
     shown = video.boxes[:, list(STRIP_FRAMES)]
     region = square_boxes(np.concatenate([shown[..., :2].min(axis=(0, 1)), shown[..., 2:].max(axis=(0, 1))]), 1.2)
     zoom = lambda image: crop_square(image, region, STRIP_SIZE)  # noqa: E731  (the people, not the empty scene)
     strip = [[zoom(video.frames[t]) for t in STRIP_FRAMES]]
-    present = jnp.ones(scene[:2], bool)
+    present = np.ones(scene[:2], bool)
     predictions = [forecast_scenes(model, body, features, rows.boxes, rows.K, present, T, config.horizon)
                    for model in models.values()]
     predictions.append((predictions[0][0], zero_motion(predictions[0][0], config.horizon)))
     for seen, rollout in predictions:
         # Scene arrays are (1, N, frames, ...): join observed and predicted frames on axis 2.
-        params = jax.tree.map(lambda past, future: jnp.concatenate([past, future], axis=2)[0], seen.params,
+        params = jax.tree.map(lambda past, future: np.concatenate([past, future], axis=2)[0], seen.params,
                               rollout.params)
-        roots = jnp.concatenate([seen.root, rollout.root], axis=2)[0]
-        shown_frames = jnp.asarray(STRIP_FRAMES)
+        roots = np.concatenate([seen.root, rollout.root], axis=2)[0]
+        shown_frames = np.asarray(STRIP_FRAMES)
         meshes = np.asarray(_meshes(body, params.rot6d[:, shown_frames], params.betas[:, shown_frames],
                                     roots[:, shown_frames]))  # (people, shown frames, vertices, 3)
         strip.append([zoom(overlay_meshes(video.frames[t], np.asarray(video.camera.K[t]), list(meshes[:, column]), body))
