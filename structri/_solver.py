@@ -621,11 +621,9 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
     chunk = max(1, min(frames, layout[0]))
     streams = layout[1] if frames >= layout[1] * chunk else 1
     steps = -(-frames // (streams * chunk))
-    pad = steps * streams * chunk - frames
 
     def to_chunks(x):  # (steps, streams, ..., chunk)
-        if pad:  # repeat the last frame: finite filler, dropped below
-            x = jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)])
+        x = _pad_frames(x, steps * streams * chunk)
         return jnp.moveaxis(x.reshape((steps, streams, chunk) + x.shape[1:]), 2, -1)
 
     kernel = functools.partial(_chunk, skeleton=skeleton, method=method, n_steps=n_steps, schedule=schedule,
@@ -644,6 +642,11 @@ def _solve_flat(points_2d, P, lengths, weights, *, axes, skeleton, method, n_ste
                         out)
 
 
+def _pad_frames(x: Array, frames: int) -> Array:
+    """``x`` (frames first) with its last frame repeated up to ``frames``: finite filler that the callers drop."""
+    return jnp.concatenate([x, jnp.repeat(x[-1:], frames - x.shape[0], axis=0)]) if frames > x.shape[0] else x
+
+
 def _padded_frames(frames: int, layout: tuple[int, int]) -> int:
     """The frame count :func:`_solve` compiles for: a power of two below one round of chunks (``chunk x streams``
     frames), else whole rounds. Inputs of nearby lengths (a tracked person's frames, a clip) share one compilation,
@@ -660,10 +663,8 @@ def _solve(points_2d, cameras, bone_lengths, skeleton, confidences, method, n_st
            multiplier_system="current", layout=(_CHUNK_FRAMES, _STREAMS)):
     frames, args, axes = _prepare(points_2d, cameras, bone_lengths, skeleton, confidences)
     flat = args[0].shape[0]
-    pad = _padded_frames(flat, layout) - flat if flat else 0
-    if pad:  # repeat the last frame: finite filler, dropped below
-        args = tuple(jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if axis == 0 else x
-                     for x, axis in zip(args, axes))
+    if flat:
+        args = tuple(_pad_frames(x, _padded_frames(flat, layout)) if axis == 0 else x for x, axis in zip(args, axes))
     out = _solve_flat(*args, axes=axes, skeleton=skeleton, method=method, n_steps=n_steps,
                       schedule=schedule, degenerate_rcond=degenerate_rcond, lagrangian=lagrangian,
                       max_length_error=max_length_error, multiplier_system=multiplier_system, layout=layout)
