@@ -112,6 +112,12 @@ def test_tests_compile_fast_and_user_commands_as_users_run_them():
 
 
 def test_repro_is_exact_with_the_project_configuration():
+    """The repro in a fresh interpreter with the project's configuration (the workaround on, XLA's defaults
+    otherwise), and in this test process (the workaround on, tests/_compile_flags.py's flags)."""
+    env = user_environment(JAX_PLATFORMS="cpu")
+    assert WORKAROUND in env["XLA_FLAGS"].split()
+    done = _run(REPRO, env)
+    assert done.returncode == 0, done.stdout + done.stderr
     assert WORKAROUND in os.environ.get("XLA_FLAGS", "").split()
     assert broadcast_multiply_reduce_error() < 1e-4
 
