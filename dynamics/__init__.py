@@ -100,6 +100,7 @@ from ._shipped import SHIPPED_MODEL as SHIPPED_MODEL
 from ._shipped import SHIPPED_TRANSFORMERS as SHIPPED_TRANSFORMERS
 from ._tcn import CausalTCN as CausalTCN
 from ._train import cached_features as cached_features
+from ._train import check_crop_sizes as check_crop_sizes
 from ._train import compute_features as compute_features
 from ._train import load_trained as load_trained
 from ._train import train as train

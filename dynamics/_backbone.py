@@ -53,7 +53,9 @@ class ResNetBackbone(nnx.Module):
     """RGB crops in [0, 1] -> one feature vector per crop (see the module docstring).
 
     With the defaults a 64 x 64 crop is 32 x 32 after the stem and 4 x 4 in the last stage (widths 16, 32, 64,
-    128). ``norm_groups`` is GroupNorm's group count (fewer where a layer is narrower)."""
+    128). ``norm_groups`` is GroupNorm's group count (fewer where a layer is narrower). ``crop_size`` is the side of
+    the crops it takes: the global pooling would accept any, so crops of another size are refused instead of being
+    turned into features the head was never trained on."""
 
     def __init__(
         self,
@@ -62,11 +64,13 @@ class ResNetBackbone(nnx.Module):
         feature_dim: int = 256,
         norm_groups: int = 8,
         *,
+        crop_size: int = 64,
         rngs: nnx.Rngs,
     ) -> None:
         if not widths or blocks_per_stage < 1:
             raise ValueError(f"need at least one stage and one block per stage, got {widths}, {blocks_per_stage}")
         self.feature_dim = feature_dim
+        self.crop_size = crop_size
         self.stem = nnx.Conv(3, widths[0], (3, 3), strides=2, padding=1, use_bias=False, rngs=rngs)
         self.stem_norm = _group_norm(widths[0], norm_groups, rngs=rngs)
         blocks, previous = [], widths[0]
@@ -80,6 +84,8 @@ class ResNetBackbone(nnx.Module):
 
     def __call__(self, crops: Float[Array, "*batch H W 3"]) -> Float[Array, "*batch feature_dim"]:
         *batch, height, width, _ = crops.shape
+        if (height, width) != (self.crop_size, self.crop_size):
+            raise ValueError(f"the backbone takes {self.crop_size} x {self.crop_size} crops, got {height} x {width}")
         # Centred on mid-grey: zero-mean inputs for the first convolution, which has no bias.
         x = 2.0 * crops.reshape(-1, height, width, 3) - 1.0
         x = jax.nn.relu(self.stem_norm(self.stem(x)))

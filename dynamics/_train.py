@@ -56,7 +56,8 @@ from ._losses import FrameTargets, LossWeights, frame_losses, interpenetration, 
 from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
 from ._prior import PosePrior, lsgan_discriminator_loss
 
-__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "cached_features", "compute_features", "load_trained", "train"]
+__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "cached_features", "check_crop_sizes", "compute_features",
+           "load_trained", "train"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +65,8 @@ class BackboneConfig:
     widths: tuple[int, ...] = (16, 32, 64, 128)
     blocks_per_stage: int = 1
     feature_dim: int = 256
+    crop_size: int = 64
+    """Side of the crops it takes, pixels (saved with it: an evaluation crops at the trained size)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,6 +117,7 @@ class TrainConfig:
         if self.model.feature_dim != self.backbone.feature_dim:
             raise ValueError(f"the backbone gives {self.backbone.feature_dim} features, the model takes "
                              f"{self.model.feature_dim}")
+        check_crop_sizes(self.backbone.crop_size, data=self.data, validation=self.validation)
         if self.observed < self.model.tcn_blocks * 2 * (self.model.tcn_kernel - 1) + 1:
             raise ValueError(f"observe at least one receptive field of frames, got {self.observed}")
         check_validation_apart(self.data, self.validation)
@@ -132,11 +136,23 @@ class TrainState(NamedTuple):
     key: jax.Array
 
 
+def check_crop_sizes(crop_size: int, **data: DataConfig) -> None:
+    """Refuse data cropped at another size than the backbone's ``crop_size`` (before any rendering)."""
+    for name, config in data.items():
+        if config.crop_size != crop_size:
+            raise ValueError(f"{name}.crop_size is {config.crop_size}, the backbone takes {crop_size} px crops")
+
+
+def _backbone_from_config(config: BackboneConfig, rngs: nnx.Rngs) -> ResNetBackbone:
+    return ResNetBackbone(tuple(config.widths), config.blocks_per_stage, config.feature_dim, crop_size=config.crop_size,
+                          rngs=rngs)
+
+
 class ImageRegressor(nnx.Module):
     """Stage 1's network: crops -> backbone features -> HMR head."""
 
     def __init__(self, backbone: BackboneConfig, model: PHDTConfig, *, rngs: nnx.Rngs):
-        self.backbone = ResNetBackbone(backbone.widths, backbone.blocks_per_stage, backbone.feature_dim, rngs=rngs)
+        self.backbone = _backbone_from_config(backbone, rngs)
         self.hmr = HMRHead(backbone.feature_dim, mean_params(model.num_shapes), hidden=model.hmr_hidden,
                            iterations=model.hmr_iterations, dropout=model.hmr_dropout, rngs=rngs)
 
@@ -311,8 +327,9 @@ def _floats(metrics: dict[str, jax.Array]) -> dict[str, float]:
 def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
     """The backbone and PHD+T written by :func:`train` to ``<workdir>/model`` (or a shipped copy of it)."""
     path = Path(path)
-    backbone = training.load_model_state(path / "backbone", lambda fields: ResNetBackbone(
-        fields["widths"], fields["blocks_per_stage"], fields["feature_dim"], rngs=nnx.Rngs(0)))
+    # Models saved before BackboneConfig.crop_size took the default 64 px crops.
+    backbone = training.load_model_state(path / "backbone",
+                                         lambda fields: _backbone_from_config(BackboneConfig(**fields), nnx.Rngs(0)))
     phdt = training.load_model_state(path / "phdt", lambda fields: PHDT(PHDTConfig(**fields), rngs=nnx.Rngs(0)))
     return backbone, phdt
 

@@ -40,7 +40,7 @@ from ._data import (DataConfig, Frames, build_frames, check_validation_apart, sc
 from ._jat import JAT, JATConfig
 from ._losses import LossWeights, frame_losses, interpenetration, penetration_surfaces, shape_consistency
 from ._phdt import crop_roots, params_to_joints
-from ._train import StageConfig, _ar_objective, _run_stage, _targets, cached_features
+from ._train import StageConfig, _ar_objective, _run_stage, _targets, cached_features, check_crop_sizes
 
 __all__ = ["TRANSFORMERS", "TransformerTrainConfig", "as_multi_person", "load_transformers", "train_all",
            "train_transformer"]
@@ -146,6 +146,7 @@ def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body:
         raise ValueError("config.movie is None (keep the conditioning networks): pass the model to start from")
     if init is not None and init.config != config.model:
         raise ValueError(f"init has config {init.config}, the run trains {config.model}")
+    check_crop_sizes(backbone.crop_size, data=config.data, validation=config.validation)
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     frames = build_frames(config.data, body, cache_dir, progress)

@@ -105,6 +105,9 @@ def main(config: Config) -> None:
             backbone, phdt = train(train_config, workdir, body, resume=True, log=log, progress=config.progress)
         else:
             backbone, phdt = load_trained(config.model_dir)
+        # The test videos are cropped at the size the backbone was trained on.
+        evaluation = dataclasses.replace(evaluation, data=dataclasses.replace(evaluation.data,
+                                                                              crop_size=backbone.crop_size))
         if config.train or config.train_transformers:
             transformer_config = dataclasses.replace(TransformerTrainConfig(seed=config.seed),
                                                      **(QUICK_TRANSFORMERS if config.quick else {}))

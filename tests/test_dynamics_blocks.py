@@ -105,6 +105,9 @@ def test_backbone_shapes_jit_and_gradients():
     other = crops.copy()
     other[1] = uniform(1, (1, 64, 64, 3))
     assert_allclose(run(other)[0][0], features[0], rtol=1e-9, atol=1e-12)
+    # Crops of another size than it was built for are refused (the global pooling would take any).
+    with pytest.raises(ValueError, match="the backbone takes 64 x 64 crops, got 32 x 32"):
+        backbone(jnp.asarray(uniform(2, (1, 32, 32, 3))))
 
 
 # ----------------------------------------------------------------------------------------------

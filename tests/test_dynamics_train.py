@@ -38,7 +38,7 @@ def _stage() -> dynamics.StageConfig:
 
 def _config(cache_dir, **overrides) -> dynamics.TrainConfig:
     base = dynamics.TrainConfig(
-        data=DATA, validation=VALIDATION, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=16),
+        data=DATA, validation=VALIDATION, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=16, crop_size=16),
         model=dynamics.PHDTConfig(feature_dim=16, joint_dim=16, channels_per_group=16, hmr_hidden=16),
         image=_stage(), movie=_stage(), ar=_stage(), observed=13, horizon=3, checkpoint_interval=2,
         validation_interval=2, log_interval=1, cache_dir=str(cache_dir))
@@ -176,7 +176,9 @@ def test_resume_after_a_kill_in_a_later_stage_is_bit_identical(full_run, tmp_pat
         loaded_backbone, loaded_phdt = dynamics.load_trained(workdir / "model")
         assert_same_parameters(loaded_backbone, full_backbone)
         assert_same_parameters(loaded_phdt, full_phdt)
-        assert loaded_phdt.config == config.model
+        assert loaded_phdt.config == config.model and loaded_backbone.crop_size == 16
+    # Saved before the backbone's config held its crop size: the shipped backbone takes the default 64 px.
+    assert dynamics.load_trained(dynamics.SHIPPED_MODEL)[0].crop_size == 64
 
 
 def test_batch_size_must_divide_by_devices(cache_dir, monkeypatch, tmp_path):
@@ -190,7 +192,9 @@ def test_config_errors(cache_dir):
     with pytest.raises(ValueError, match="must use another seed"):
         _config(cache_dir, validation=dataclasses.replace(VALIDATION, seed=DATA.seed))
     with pytest.raises(ValueError, match="the backbone gives 32 features"):
-        _config(cache_dir, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=32))
+        _config(cache_dir, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=32, crop_size=16))
+    with pytest.raises(ValueError, match="data.crop_size is 16, the backbone takes 64 px crops"):
+        _config(cache_dir, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=16))
     with pytest.raises(ValueError, match="observe at least one receptive field"):
         _config(cache_dir, observed=12)
     with pytest.raises(ValueError, match="batch_size must be >= 1"):

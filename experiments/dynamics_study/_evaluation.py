@@ -28,8 +28,8 @@ from jaxtyping import Array, Float
 import geometry
 import mocap
 import training
-from dynamics import (EvalConfig, build_frames, compute_features, crop_square, forecast_scenes, predict_windows,
-                      square_boxes, summarise, video_tracks, zero_motion)
+from dynamics import (EvalConfig, build_frames, check_crop_sizes, compute_features, crop_square, forecast_scenes,
+                      predict_windows, square_boxes, summarise, video_tracks, zero_motion)
 
 from ._report import overlay_meshes, plot_prediction, results_markdown
 
@@ -50,6 +50,7 @@ def run_experiment(out: str | Path, backbone, models: Mapping[str, nnx.Module], 
                    progress: bool = True) -> dict:
     """Evaluate ``models`` (name -> PHD+T or a transformer; ZeroMotion repeats the first one's last observed
     frame) and write the outputs listed in the module docstring; returns the ``results.json`` content."""
+    check_crop_sizes(backbone.crop_size, data=config.data)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
