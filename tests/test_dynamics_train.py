@@ -38,7 +38,8 @@ def _stage() -> dynamics.StageConfig:
 
 def _config(cache_dir, **overrides) -> dynamics.TrainConfig:
     base = dynamics.TrainConfig(
-        data=DATA, validation=VALIDATION, backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=16, crop_size=16),
+        data=DATA, validation=VALIDATION,
+        backbone=dynamics.BackboneConfig(widths=(4, 8), feature_dim=16, crop_size=DATA.crop_size),
         model=dynamics.PHDTConfig(feature_dim=16, joint_dim=16, channels_per_group=16, hmr_hidden=16),
         image=_stage(), movie=_stage(), ar=_stage(), observed=13, horizon=3, checkpoint_interval=2,
         validation_interval=2, log_interval=1, cache_dir=str(cache_dir))
