@@ -26,7 +26,6 @@ from typing import Any, NamedTuple, TypeVar
 import cv2
 import jax
 import numpy as np
-import tqdm
 from jaxtyping import Bool, Float, Int, UInt8
 
 import geometry
@@ -42,10 +41,11 @@ __all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS",
 Columns = TypeVar("Columns", bound=Any)
 """A pytree of per-row arrays (a :class:`Frames`, or a tuple of features and frames)."""
 
-TEST_SINGLE_PERSON_CLIPS: tuple[str, ...] = ("03_01_uneven", "02_04_jump")
-"""Held out: the single-person test samples."""
+TEST_SINGLE_PERSON_CLIPS: tuple[str, ...] = ("03_01_uneven", "01_01_jumps")
+"""Held out: the single-person test samples, of subjects 03 and 01, who appear in no training clip."""
 TEST_MULTI_PERSON_CLIPS: tuple[str, ...] = ("60_05_61_05_salsa",)
-"""Held out: the two-person test samples (the second salsa pair; the first one trains)."""
+"""Held out: the two-person test samples (the second salsa take; the first one trains). The only two-person
+recordings at hand are two takes of one pair of subjects (60 and 61), so this split cannot be subject-disjoint."""
 TRAIN_CLIPS: tuple[str, ...] = tuple(c for c in mocap.list_clips()
                                      if c not in TEST_SINGLE_PERSON_CLIPS + TEST_MULTI_PERSON_CLIPS)
 
@@ -157,31 +157,44 @@ def _cache_file(config: DataConfig, clips: list[mocap.Clip], cache_dir: Path) ->
 
 
 def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str | Path | None = None,
-                 progress: bool = True) -> Frames:
+                 progress: bool = True, workers: int = 1) -> Frames:
     """Render, augment and crop every clip of ``config`` (module docstring); cached in ``cache_dir`` when given
-    (a file named by a hash of the config and of its motion files' joints, written atomically)."""
+    (a file named by a hash of the config and of its motion files' joints, written atomically).
+
+    Each render draws from its own generator, seeded by ``(config.seed, clip, render)``, so ``workers`` CPU
+    processes (:func:`training.process_map`) give the same frames as one."""
     clips = [mocap.shared_clip(spec) for spec in config.clips]
     path = None if cache_dir is None else _cache_file(config, clips, Path(cache_dir))
     if path is not None and path.is_file():
         with np.load(path) as stored:
             return Frames(**{name: stored[name] for name in Frames._fields})
-    rng = np.random.default_rng(config.seed)
-    rows: list[Frames] = []
-    variant = track = 0
-    jobs = [(c, r) for c in range(len(config.clips)) for r in range(config.renders)]
-    for clip_index, _ in tqdm.tqdm(jobs, disable=not progress, desc="render videos"):
-        clip = clips[clip_index]
-        betas = rng.normal(0.0, config.shape_std, (clip.num_people, model.num_shapes))
-        video = mocap.synthesise_video(mocap.retarget_clip(clip, model, betas), model, config.video, rng)
-        for epoch in range(config.augmented_epochs):
-            shown = mocap.flip_video(video, model) if config.flip and epoch % 2 == 1 else video
-            rows.append(video_tracks(shown, config, rng, first_track=track, variant=variant, clip=clip_index))
-            track += clip.num_people
-            variant += 1
-    frames = Frames(*(np.concatenate(column) for column in zip(*rows)))
+    jobs, track, variant = [], 0, 0
+    for clip_index, clip in enumerate(clips):
+        for render in range(config.renders):
+            jobs.append((config, clip_index, render, model, track, variant))
+            track += clip.num_people * config.augmented_epochs
+            variant += config.augmented_epochs
+    rendered = training.process_map(_render, jobs, workers, progress="render videos" if progress else None)
+    frames = Frames(*(np.concatenate(column) for column in zip(*rendered)))
     if path is not None:
         training.write_atomically(path, lambda file: np.savez(file, **frames._asdict()))
     return frames
+
+
+def _render(config: DataConfig, clip_index: int, render: int, model: geometry.BodyModel, first_track: int,
+            first_variant: int) -> Frames:
+    """The ``augmented_epochs`` variants of one render of clip ``clip_index``, tracks and variants numbered from
+    ``first_track`` and ``first_variant``."""
+    clip = mocap.shared_clip(config.clips[clip_index])
+    rng = np.random.default_rng((config.seed, clip_index, render))
+    betas = rng.normal(0.0, config.shape_std, (clip.num_people, model.num_shapes))
+    video = mocap.synthesise_video(mocap.retarget_clip(clip, model, betas), model, config.video, rng)
+    rows = []
+    for epoch in range(config.augmented_epochs):
+        shown = mocap.flip_video(video, model) if config.flip and epoch % 2 == 1 else video
+        rows.append(video_tracks(shown, config, rng, first_track=first_track + epoch * clip.num_people,
+                                 variant=first_variant + epoch, clip=clip_index))
+    return Frames(*(np.concatenate(column) for column in zip(*rows)))
 
 
 def video_tracks(video: mocap.Video, config: DataConfig, rng: np.random.Generator, first_track: int = 0,

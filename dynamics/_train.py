@@ -335,14 +335,16 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
 
 
 def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
-          log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> tuple[ResNetBackbone, PHDT]:
+          log: Callable[[dict], None] = lambda record: None, progress: bool = True,
+          data_workers: int = 1) -> tuple[ResNetBackbone, PHDT]:
     """Run the three stages of the module docstring in ``workdir`` and return the trained backbone and PHD+T.
 
-    ``resume=True`` continues a killed run (finished stages are restored, not retrained)."""
+    ``resume=True`` continues a killed run (finished stages are restored, not retrained); ``data_workers`` CPU
+    processes render the videos (the same frames as one)."""
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
-    frames = build_frames(config.data, body, cache_dir, progress)
-    validation = build_frames(config.validation, body, cache_dir, progress)
+    frames = build_frames(config.data, body, cache_dir, progress, data_workers)
+    validation = build_frames(config.validation, body, cache_dir, progress, data_workers)
 
     rngs = nnx.Rngs(config.seed)
     image_model = ImageRegressor(config.backbone, config.model, rngs=rngs)

@@ -139,9 +139,11 @@ def _future_errors(body, model: JAT, features, rows: Frames, present, observed: 
 
 def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body: geometry.BodyModel,
                       backbone: ResNetBackbone, init: JAT | None = None, *, resume: bool,
-                      log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> JAT:
+                      log: Callable[[dict], None] = lambda record: None, progress: bool = True,
+                      data_workers: int = 1) -> JAT:
     """Train one JAT or MPJAT (``config.model``) in ``workdir`` on ``backbone``'s features (module docstring),
-    starting from ``init`` (its weights are copied; required when ``config.movie`` is None)."""
+    starting from ``init`` (its weights are copied; required when ``config.movie`` is None); ``data_workers`` CPU
+    processes render the videos."""
     if config.movie is None and init is None:
         raise ValueError("config.movie is None (keep the conditioning networks): pass the model to start from")
     if init is not None and init.config != config.model:
@@ -149,8 +151,8 @@ def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body:
     check_crop_sizes(backbone.crop_size, data=config.data, validation=config.validation)
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
-    frames = build_frames(config.data, body, cache_dir, progress)
-    validation = build_frames(config.validation, body, cache_dir, progress)
+    frames = build_frames(config.data, body, cache_dir, progress, data_workers)
+    validation = build_frames(config.validation, body, cache_dir, progress, data_workers)
     features = cached_features(backbone, frames, config.data, cache_dir, progress)
     validation_features = cached_features(backbone, validation, config.validation, cache_dir, progress)
     columns = (features, without_crops(frames))
@@ -232,8 +234,9 @@ def _ar_stage_start(trained: JAT, config: JATConfig, seed: int) -> JAT:
 
 
 def train_all(config: TransformerTrainConfig, workdir: str | Path, body: geometry.BodyModel,
-              backbone: ResNetBackbone, hmr_init: nnx.Module | None = None, *, resume: bool, log: Callable[[dict], None] = lambda record: None,
-              progress: bool = True) -> dict[str, JAT]:
+              backbone: ResNetBackbone, hmr_init: nnx.Module | None = None, *, resume: bool,
+              log: Callable[[dict], None] = lambda record: None, progress: bool = True,
+              data_workers: int = 1) -> dict[str, JAT]:
     """The four transformers of the module docstring, each in ``workdir/<name>/``, their models copied to
     ``workdir/models/``. ``config`` is JAT's (its ``multi_person_movie`` is the MPJATs' conditioning stage);
     ``hmr_init`` (e.g. PHD+T's f_HMR, of the same size) starts JAT's f_HMR."""
@@ -264,6 +267,6 @@ def train_all(config: TransformerTrainConfig, workdir: str | Path, body: geometr
             run_config = dataclasses.replace(run_config, cache_dir=str((workdir / "data_cache").resolve()))
         models[name] = train_transformer(run_config, workdir / _folder(name), body, backbone, init, resume=resume,
                                          log=lambda record, name=name: log({"model": name, **record}),
-                                         progress=progress)
+                                         progress=progress, data_workers=data_workers)
         training.save_model(workdir / "models" / _folder(name), run_config.model, nnx.state(models[name]))
     return models

@@ -20,6 +20,7 @@ from numpy.testing import assert_allclose
 import dynamics
 import geometry
 import mocap
+import training
 from _training_harness import Killed, assert_same_parameters, run_on_two_devices
 
 BODY = geometry.stand_in_body_model()
@@ -53,6 +54,20 @@ def cache_dir(tmp_path_factory) -> Path:
     for data in (DATA, VALIDATION):
         dynamics.build_frames(data, BODY, path, progress=False)
     return path
+
+
+def test_renders_do_not_depend_on_the_order_they_are_made_in(monkeypatch):
+    """Each render draws from its own generator, so worker processes (which finish in any order) give the frames
+    of one process: here the jobs run last to first."""
+    data = dataclasses.replace(DATA, renders=2)
+    in_order = dynamics.build_frames(data, BODY, progress=False)
+
+    def backwards(fn, jobs, workers, progress=None):
+        return [fn(*job) for job in jobs[::-1]][::-1]
+
+    monkeypatch.setattr(training, "process_map", backwards)
+    for column, expected in zip(dynamics.build_frames(data, BODY, progress=False), in_order):
+        np.testing.assert_array_equal(column, expected)
 
 
 def _records(path: Path) -> list[dict]:
