@@ -8,8 +8,10 @@ from flax import nnx
 from numpy.testing import assert_allclose
 
 import geometry
-from dynamics import (PHDT, FrameTargets, Frames, LossWeights, PHDTConfig, SMPLParams, crop_square, frame_losses,
-                      frame_metrics, gather_windows, square_boxes, window_starts, zero_motion)
+import mocap
+from dynamics import (PHDT, TEST_MULTI_PERSON_CLIPS, TEST_SINGLE_PERSON_CLIPS, TRAIN_CLIPS, FrameTargets, Frames,
+                      LossWeights, PHDTConfig, SMPLParams, crop_square, frame_losses, frame_metrics, gather_windows,
+                      square_boxes, window_starts, zero_motion)
 
 BODY = geometry.stand_in_body_model()
 CONFIG = PHDTConfig(feature_dim=128, joint_dim=128, hmr_hidden=64)
@@ -66,6 +68,15 @@ def test_windows_never_cross_a_track():
     assert np.all(windows.track == windows.track[:, :1])
     assert_allclose(windows.frame[:, 0], [0, 1, 2] * 3)
     assert len(window_starts(frames, 7)) == 0
+
+
+def test_single_person_test_subjects_never_train_and_no_test_take_trains():
+    subjects = lambda names: {trial.split("_")[0] for name in names for trial in mocap.load_clip(name).trials}  # noqa: E731
+    takes = lambda names: {trial for name in names for trial in mocap.load_clip(name).trials}  # noqa: E731
+    assert subjects(TEST_SINGLE_PERSON_CLIPS) == {"01", "03"}
+    assert not subjects(TEST_SINGLE_PERSON_CLIPS) & subjects(TRAIN_CLIPS)
+    # The only two-person recordings are two takes of subjects 60 and 61: the pair's test take is unseen, its subjects not.
+    assert not takes(TEST_MULTI_PERSON_CLIPS) & takes(TRAIN_CLIPS)
 
 
 def test_the_ground_truth_scores_perfectly_and_a_shift_moves_only_root_and_pck():
