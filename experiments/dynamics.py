@@ -21,24 +21,61 @@ import dataclasses
 from pathlib import Path
 
 import geometry
-from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, DataConfig, EvalConfig, StageConfig, TrainConfig,
+from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, BackboneConfig, EvalConfig, StageConfig, TrainConfig,
                       TransformerTrainConfig, load_trained, load_transformers, train, train_all)
 from experiments import _cli
 from experiments.dynamics_study import run_experiment
 
 QUICK_EVAL = dict(stride=15)
+QUICK_CLIPS = ("02_01_walk", "60_03_61_03_salsa")
 QUICK_TRAIN = dict(
-    data=DataConfig(clips=("02_01_walk", "60_03_61_03_salsa"), renders=1, augmented_epochs=2),
     image=StageConfig(steps=40, batch_size=16, learning_rate=1e-3, warmup_steps=5),
     movie=StageConfig(steps=20, batch_size=8, learning_rate=3e-4, warmup_steps=5),
     ar=StageConfig(steps=20, batch_size=8, learning_rate=3e-4, warmup_steps=5),
     checkpoint_interval=20, validation_interval=20, log_interval=10)
 QUICK_TRANSFORMERS = dict(
-    data=QUICK_TRAIN["data"],
     movie=StageConfig(steps=10, batch_size=4, learning_rate=3e-4, warmup_steps=2),
     multi_person_movie=StageConfig(steps=5, batch_size=4, learning_rate=1e-4, warmup_steps=1),
     ar=StageConfig(steps=5, batch_size=4, learning_rate=3e-4, warmup_steps=1),
     checkpoint_interval=5, validation_interval=5, log_interval=5)
+
+RECIPES = ("small", "large")
+"""``small``: the shipped models, sized for a CPU; ``large``: sized for one GPU (issue 26's larger crops and
+backbone, more rendered motion)."""
+
+
+def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path | None
+                     ) -> tuple[TrainConfig, TransformerTrainConfig]:
+    """The backbone and PHD+T run, and the transformers' (JAT's, as :func:`dynamics.train_all` takes it), of
+    ``recipe``; ``quick``: a few steps per stage on two clips of its data (a smoke run).
+
+    ``large`` takes 128 px crops and a ResNet twice as wide with two blocks per stage, renders every training clip
+    and every file of the CMU-Mocap benchmark's train split (``<data_root>/cmu_expmap/train``, single-person motion
+    of subjects the test clips' subjects are not known to be among) twice with four variants each, and trains ten
+    times as many steps with larger batches."""
+    phdt, transformers = TrainConfig(seed=seed), TransformerTrainConfig(seed=seed)
+    if recipe == "large":
+        crop = 128
+        extra = () if quick else _cli.expmap_clips(data_root, "train")
+        data = dataclasses.replace(phdt.data, clips=phdt.data.clips + extra, crop_size=crop)
+        phdt = dataclasses.replace(
+            phdt, data=data, validation=dataclasses.replace(phdt.validation, crop_size=crop),
+            backbone=BackboneConfig(widths=(32, 64, 128, 256), blocks_per_stage=2, crop_size=crop),
+            image=StageConfig(steps=20_000, batch_size=64, learning_rate=1e-3, warmup_steps=500),
+            movie=StageConfig(steps=6_000, batch_size=32, learning_rate=3e-4, warmup_steps=300),
+            ar=StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150),
+            checkpoint_interval=500, validation_interval=1_000)
+        transformers = dataclasses.replace(
+            transformers, data=data, validation=dataclasses.replace(transformers.validation, crop_size=crop),
+            movie=StageConfig(steps=6_000, batch_size=32, learning_rate=3e-4, warmup_steps=300),
+            ar=StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150),
+            multi_person_movie=StageConfig(steps=1_500, batch_size=32, learning_rate=1e-4, warmup_steps=150),
+            checkpoint_interval=500, validation_interval=500)
+    if quick:
+        data = dataclasses.replace(phdt.data, clips=QUICK_CLIPS, renders=1, augmented_epochs=2)
+        phdt = dataclasses.replace(phdt, data=data, **QUICK_TRAIN)
+        transformers = dataclasses.replace(transformers, data=data, **QUICK_TRANSFORMERS)
+    return phdt, transformers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,8 +104,14 @@ class Config:
     .txt, .amc beside its .asf, .bvh in CMU's units), or the files of two people captured together joined by '+'
     (cmu_mocap/60_03_scaled.bvh+cmu_mocap/61_03_scaled.bvh, the salsa pair's files); relative paths under
     --data-root. One-person clips give the single-person results, pairs the two-person ones."""
+    recipe: str = "small"
+    """Training recipe (with --train or --train-transformers): 'small', the shipped models, sized for a CPU;
+    'large', sized for one GPU: 128 px crops, a wider and deeper ResNet, the CMU-Mocap benchmark's train split
+    rendered as extra motion (needs --data-root), ten times the steps."""
     seed: int = 0
     """Training seed (with --train or --train-transformers)."""
+    data_workers: int = 1
+    """CPU processes that render the training videos (the same frames as one)."""
     progress: bool = True
     """Progress bars."""
 
@@ -82,7 +125,17 @@ class Config:
             raise ValueError(f"--body-model {self.body_model} is not a file")
         if not self.clips:
             raise ValueError("--clips names no clip")
+        if self.recipe not in RECIPES:
+            raise ValueError(f"--recipe must be one of {RECIPES}, got {self.recipe!r}")
+        if self.data_workers < 1:
+            raise ValueError(f"--data-workers must be >= 1, got {self.data_workers}")
         self.evaluation()  # refuses a clip that is neither shipped nor files before any work
+        if self.train or self.train_transformers:
+            self.training()  # refuses the large recipe without the benchmark's files before any work
+
+    def training(self) -> tuple[TrainConfig, TransformerTrainConfig]:
+        """The training runs of --recipe (:func:`training_configs`)."""
+        return training_configs(self.recipe, self.seed, self.quick, self.data_root)
 
     def evaluation(self) -> EvalConfig:
         """The held-out evaluation on --clips (each file as a path that exists, relative ones found under the data
@@ -100,19 +153,21 @@ def main(config: Config) -> None:
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out:
         log = _cli.jsonl_log(out)
+        train_config, transformer_config = config.training()
         if config.train:
-            train_config = dataclasses.replace(TrainConfig(seed=config.seed), **(QUICK_TRAIN if config.quick else {}))
-            backbone, phdt = train(train_config, workdir, body, resume=True, log=log, progress=config.progress)
+            backbone, phdt = train(train_config, workdir, body, resume=True, log=log, progress=config.progress,
+                                   data_workers=config.data_workers)
         else:
             backbone, phdt = load_trained(config.model_dir)
         # The test videos are cropped at the size the backbone was trained on.
         evaluation = dataclasses.replace(evaluation, data=dataclasses.replace(evaluation.data,
                                                                               crop_size=backbone.crop_size))
         if config.train or config.train_transformers:
-            transformer_config = dataclasses.replace(TransformerTrainConfig(seed=config.seed),
-                                                     **(QUICK_TRANSFORMERS if config.quick else {}))
+            # PHD+T's renders are the transformers' too (the same training data): one cache.
+            transformer_config = dataclasses.replace(transformer_config,
+                                                     cache_dir=str((workdir / "data_cache").resolve()))
             transformers = train_all(transformer_config, workdir / "transformers", body, backbone, phdt.hmr,
-                                     resume=True, log=log, progress=config.progress)
+                                     resume=True, log=log, progress=config.progress, data_workers=config.data_workers)
         else:
             transformers = load_transformers(config.transformer_dir)
         results = run_experiment(out, backbone, {"PHD+T": phdt, **transformers}, body, evaluation, log=log,

@@ -13,7 +13,7 @@ import pytest
 
 import mocap
 import training
-from dynamics import DataConfig
+from dynamics import TRAIN_CLIPS, DataConfig
 from dynamics._data import _cache_file
 from experiments.dynamics_study import STRIP_FRAMES, STRIP_SIZE
 from experiments.dynamics_study._evaluation import _frame_title, _titled
@@ -78,17 +78,37 @@ def test_the_command_refuses_a_missing_clip_file_on_one_line(tmp_path):
     assert "(relative paths need --data-root)" in run.stderr and not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize(("clips", "message"), [
-    (["missing.bvh"], "--clips 'missing.bvh' is neither a shipped clip"),
-    ([], "--clips names no clip"),
+@pytest.mark.parametrize(("options", "message"), [
+    (["--clips", "missing.bvh"], "--clips 'missing.bvh' is neither a shipped clip"),
+    (["--clips"], "--clips names no clip"),
+    (["--recipe", "huge"], "--recipe must be one of ('small', 'large'), got 'huge'"),
+    (["--data-workers", "0"], "--data-workers must be >= 1, got 0"),
 ])
-def test_the_options_refuse_a_bad_clip_before_any_work(clips, message, capsys):
+def test_the_options_refuse_bad_values_before_any_work(options, message, capsys):
     from experiments import _cli, dynamics
 
     with pytest.raises(SystemExit) as exit_info:
-        _cli.parse(dynamics.Config, ["--out", "x", "--clips", *clips], prog="dynamics")
+        _cli.parse(dynamics.Config, ["--out", "x", *options], prog="dynamics")
     error = capsys.readouterr().err
     assert exit_info.value.code == 2 and error.count("\n") == 1 and message in error, error
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("quick", [False, True])
+def test_the_large_recipe_is_consistent_and_renders_the_benchmark_train_split(data_root, quick):
+    """Its crops, backbone and data agree (each config validates itself), and it renders every training clip plus
+    the CMU-Mocap benchmark's train files (none in --quick, which renders two clips); the small recipe is the
+    defaults the shipped models were trained with."""
+    from experiments import _cli, dynamics
+
+    small = dynamics.training_configs("small", 0, False, data_root)
+    assert small == (dynamics.TrainConfig(), dynamics.TransformerTrainConfig())
+    phdt, transformers = dynamics.training_configs("large", 3, quick, data_root)
+    assert phdt.seed == transformers.seed == 3 and phdt.data == transformers.data
+    assert phdt.backbone.crop_size == phdt.data.crop_size == transformers.validation.crop_size == 128
+    expmap = _cli.expmap_clips(data_root, "train")
+    expected = dynamics.QUICK_CLIPS if quick else TRAIN_CLIPS + expmap
+    assert phdt.data.clips == expected and len(expmap) == 72
 
 
 def test_the_strip_titles_its_rows_and_columns():
