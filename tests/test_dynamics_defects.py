@@ -58,7 +58,7 @@ def plan(tmp_path_factory) -> dict[str, tuple[TransformerTrainConfig, dict, dict
     "trains" it by adding 1 to every parameter: whatever a run inherits from a trained model is changed."""
     runs = {}
 
-    def train_transformer(config, workdir, body, backbone, init=None, *, resume, log, progress):
+    def train_transformer(config, workdir, body, backbone, init=None, *, resume, log, progress, data_workers):
         model = JAT(config.model, rngs=nnx.Rngs(config.seed))
         if init is not None:
             nnx.update(model, nnx.state(init, nnx.Param))
