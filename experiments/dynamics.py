@@ -58,17 +58,17 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
         crop = 128
         extra = () if quick else _cli.expmap_clips(data_root, "train")
         data = dataclasses.replace(phdt.data, clips=phdt.data.clips + extra, crop_size=crop)
+        # The conditioning and prediction stages of PHD+T and of the transformers train alike.
+        movie = StageConfig(steps=6_000, batch_size=32, learning_rate=3e-4, warmup_steps=300)
+        ar = StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150)
         phdt = dataclasses.replace(
             phdt, data=data, validation=dataclasses.replace(phdt.validation, crop_size=crop),
             backbone=BackboneConfig(widths=(32, 64, 128, 256), blocks_per_stage=2, crop_size=crop),
             image=StageConfig(steps=20_000, batch_size=64, learning_rate=1e-3, warmup_steps=500),
-            movie=StageConfig(steps=6_000, batch_size=32, learning_rate=3e-4, warmup_steps=300),
-            ar=StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150),
-            checkpoint_interval=500, validation_interval=1_000)
+            movie=movie, ar=ar, checkpoint_interval=500, validation_interval=1_000)
         transformers = dataclasses.replace(
             transformers, data=data, validation=dataclasses.replace(transformers.validation, crop_size=crop),
-            movie=StageConfig(steps=6_000, batch_size=32, learning_rate=3e-4, warmup_steps=300),
-            ar=StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150),
+            movie=movie, ar=ar,
             multi_person_movie=StageConfig(steps=1_500, batch_size=32, learning_rate=1e-4, warmup_steps=150),
             checkpoint_interval=500, validation_interval=500)
     if quick:
