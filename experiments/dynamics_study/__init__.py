@@ -1,7 +1,8 @@
 """The dynamics evaluations: ``python -m experiments.dynamics``, the models and ZeroMotion on held-out synthetic
 videos, written as tables (Tables 5.2-5.11's layout), prediction plots (Fig. 5.1) and a strip of observed and
 predicted meshes rendered into the video frames; ``python -m experiments.dynamics_forecast``, the 3D forecasters
-and two baselines on the CMU-Mocap benchmark's motion, per action and horizon."""
+and two baselines on the CMU-Mocap benchmark's motion, per action and horizon; ``python -m
+experiments.dynamics_seeds``, the first's tables as mean and spread over training seeds."""
 
 from ._evaluation import run_experiment as run_experiment
 from ._evaluation import write_strip as write_strip
@@ -14,3 +15,5 @@ from ._forecast import BASELINES as BASELINES
 from ._report import overlay_meshes as overlay_meshes
 from ._report import plot_prediction as plot_prediction
 from ._report import results_markdown as results_markdown
+from ._seeds import seeds_markdown as seeds_markdown
+from ._seeds import seeds_summary as seeds_summary
