@@ -44,6 +44,7 @@ from ._data import Frames as Frames
 from ._data import TEST_MULTI_PERSON_CLIPS as TEST_MULTI_PERSON_CLIPS
 from ._data import TEST_SINGLE_PERSON_CLIPS as TEST_SINGLE_PERSON_CLIPS
 from ._data import TRAIN_CLIPS as TRAIN_CLIPS
+from ._data import VALIDATION_DATA as VALIDATION_DATA
 from ._evaluate import forecast_scenes as forecast_scenes
 from ._evaluate import frame_metrics as frame_metrics
 from ._evaluate import penetration_mm as penetration_mm
@@ -102,9 +103,12 @@ from ._tcn import CausalTCN as CausalTCN
 from ._train import cached_features as cached_features
 from ._train import check_crop_sizes as check_crop_sizes
 from ._train import compute_features as compute_features
+from ._train import conditioning_metrics as conditioning_metrics
 from ._train import load_trained as load_trained
 from ._train import train as train
+from ._train import train_conditioning as train_conditioning
 from ._train import BackboneConfig as BackboneConfig
+from ._train import ImageRegressor as ImageRegressor
 from ._train import StageConfig as StageConfig
 from ._train import TrainConfig as TrainConfig
 from ._train_forecast import canonical_scenes as canonical_scenes

@@ -34,8 +34,8 @@ import training
 
 from ._poses import PoseFrames
 
-__all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "DataConfig", "Frames",
-           "build_frames", "check_validation_apart", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
+__all__ = ["TEST_MULTI_PERSON_CLIPS", "TEST_SINGLE_PERSON_CLIPS", "TRAIN_CLIPS", "VALIDATION_DATA", "DataConfig",
+           "Frames", "build_frames", "check_validation_apart", "crop_square", "gather_windows", "scene_windows", "square_boxes", "video_tracks",
            "window_starts", "without_crops"]
 
 Columns = TypeVar("Columns", bound=Any)
@@ -84,6 +84,12 @@ class DataConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.box_margin < 1.0:
             raise ValueError(f"box_margin must be >= 1 (a crop holds its whole box), got {self.box_margin}")
+
+
+VALIDATION_DATA = DataConfig(clips=("02_01_walk", "60_03_61_03_salsa"), renders=1, augmented_epochs=1, jitter=False,
+                             flip=False, seed=1_000)
+"""What the video models validate on: fresh renders (new cameras and shapes) of two training clips, one of them
+two-person; never a test clip."""
 
 
 def check_validation_apart(data: DataConfig, validation: DataConfig) -> None:

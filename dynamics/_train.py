@@ -49,15 +49,15 @@ import geometry
 import training
 
 from ._backbone import ResNetBackbone
-from ._data import (DataConfig, Frames, build_frames, check_validation_apart, gather_windows, window_starts,
-                    without_crops)
+from ._data import (VALIDATION_DATA, DataConfig, Frames, build_frames, check_validation_apart, gather_windows,
+                    window_starts, without_crops)
 from ._hmr import HMRHead, SMPLParams, mean_params
 from ._losses import FrameTargets, LossWeights, frame_losses, interpenetration, shape_consistency
 from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
 from ._prior import PosePrior, lsgan_discriminator_loss
 
-__all__ = ["BackboneConfig", "StageConfig", "TrainConfig", "cached_features", "check_crop_sizes", "compute_features",
-           "load_trained", "train"]
+__all__ = ["BackboneConfig", "ImageRegressor", "StageConfig", "TrainConfig", "cached_features", "check_crop_sizes",
+           "compute_features", "conditioning_metrics", "load_trained", "train", "train_conditioning"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,9 +93,7 @@ class TrainConfig:
     """Everything that determines a training run (written to ``config.json``)."""
 
     data: DataConfig = DataConfig()
-    validation: DataConfig = DataConfig(clips=("02_01_walk",), renders=1, augmented_epochs=1, jitter=False,
-                                        flip=False, seed=1_000)
-    """Fresh renders (new cameras and shapes) of a training clip: validation never sees a test clip."""
+    validation: DataConfig = VALIDATION_DATA
     backbone: BackboneConfig = BackboneConfig()
     model: PHDTConfig = PHDTConfig()
     losses: LossWeights = LossWeights()
@@ -334,6 +332,67 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
     return backbone, phdt
 
 
+def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames: Frames,
+                         batch_size: int = 256) -> dict[str, float]:
+    """Stage 1's network on single frames (the first ``batch_size`` at a time): root-relative MPJPE (``mpjpe_mm``),
+    the error of the pelvis its crop camera places (``root_mm``), and the mean ratio of that pelvis' depth to the
+    true one (``depth_ratio``; below 1: people placed too near the camera)."""
+    graphdef, state = nnx.split(model)
+
+    @jax.jit
+    def sums(state, rows: Frames) -> jax.Array:
+        model = nnx.merge(graphdef, state)
+        params = model.hmr(model.backbone(_crops(rows)))
+        joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
+        root = crop_roots(params, rows.boxes, rows.K)
+        return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
+                          jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)),
+                          jnp.sum(root[:, 2] / rows.root[:, 2])])
+
+    total = np.zeros(3)
+    for first in range(0, frames.num_frames, batch_size):
+        total += np.asarray(sums(state, jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]),
+                                                     frames)))
+    mpjpe, root, ratio = total / frames.num_frames
+    return {"mpjpe_mm": 1000.0 * mpjpe, "root_mm": 1000.0 * root, "depth_ratio": ratio}
+
+
+def _training_frames(config: TrainConfig, workdir: Path, body: geometry.BodyModel, progress: bool,
+                     data_workers: int) -> tuple[Path, Frames, Frames]:
+    """The render cache folder, the training frames and the validation frames of ``config``."""
+    cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
+    return (cache_dir, build_frames(config.data, body, cache_dir, progress, data_workers),
+            build_frames(config.validation, body, cache_dir, progress, data_workers))
+
+
+def _train_image(config: TrainConfig, workdir: Path, body: geometry.BodyModel, frames: Frames, validation: Frames,
+                 rngs: nnx.Rngs, *, resume: bool, log: Callable[[dict], None], progress: bool) -> ImageRegressor:
+    image_model = ImageRegressor(config.backbone, config.model, rngs=rngs)
+
+    def sample_rows(key):
+        index = np.asarray(jax.random.randint(key, (config.image.batch_size,), 0, frames.num_frames))
+        return jax.tree.map(lambda column: column[index], frames)
+
+    def validate_image(model: ImageRegressor) -> dict[str, float]:
+        metrics = conditioning_metrics(body, model, jax.tree.map(lambda column: column[::4], validation))
+        return {f"val_{name}": value for name, value in metrics.items()}
+
+    return _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective, sample_rows,
+                      validate_image, body, resume=resume, log=log, progress=progress)
+
+
+def train_conditioning(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
+                       log: Callable[[dict], None] = lambda record: None, progress: bool = True,
+                       data_workers: int = 1) -> ImageRegressor:
+    """Only the first of :func:`train`'s stages, in the same folders (:func:`train` on ``workdir`` continues from
+    it): the backbone and HMR head on single frames, for choices about the data that this stage sees first (score
+    them with :func:`conditioning_metrics` on validation frames)."""
+    workdir = Path(workdir).resolve()
+    _, frames, validation = _training_frames(config, workdir, body, progress, data_workers)
+    return _train_image(config, workdir, body, frames, validation, nnx.Rngs(config.seed), resume=resume, log=log,
+                        progress=progress)
+
+
 def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
           log: Callable[[dict], None] = lambda record: None, progress: bool = True,
           data_workers: int = 1) -> tuple[ResNetBackbone, PHDT]:
@@ -342,27 +401,10 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
     ``resume=True`` continues a killed run (finished stages are restored, not retrained); ``data_workers`` CPU
     processes render the videos (the same frames as one)."""
     workdir = Path(workdir).resolve()
-    cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
-    frames = build_frames(config.data, body, cache_dir, progress, data_workers)
-    validation = build_frames(config.validation, body, cache_dir, progress, data_workers)
-
+    cache_dir, frames, validation = _training_frames(config, workdir, body, progress, data_workers)
     rngs = nnx.Rngs(config.seed)
-    image_model = ImageRegressor(config.backbone, config.model, rngs=rngs)
-
-    def sample_rows(key):
-        index = np.asarray(jax.random.randint(key, (config.image.batch_size,), 0, frames.num_frames))
-        return jax.tree.map(lambda column: column[index], frames)
-
-    # Validation is jitted (one program per stage): run eagerly, every operation was compiled on its own.
-    @nnx.jit
-    def image_metrics(model, rows):
-        return {"val_mpjpe_mm": _mpjpe_mm(body, model.hmr(model.backbone(_crops(rows))), rows)}
-
-    def validate_image(model: ImageRegressor) -> dict[str, float]:
-        return _floats(image_metrics(model, jax.tree.map(lambda column: column[::4], validation)))
-
-    image_model = _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective,
-                             sample_rows, validate_image, body, resume=resume, log=log, progress=progress)
+    image_model = _train_image(config, workdir, body, frames, validation, rngs, resume=resume, log=log,
+                               progress=progress)
 
     features = cached_features(image_model.backbone, frames, config.data, cache_dir, progress)
     validation_features = cached_features(image_model.backbone, validation, config.validation, cache_dir, progress)

@@ -35,8 +35,8 @@ import geometry
 import training
 
 from ._backbone import ResNetBackbone
-from ._data import (DataConfig, Frames, build_frames, check_validation_apart, scene_windows, window_starts,
-                    without_crops)
+from ._data import (VALIDATION_DATA, DataConfig, Frames, build_frames, check_validation_apart, scene_windows,
+                    window_starts, without_crops)
 from ._jat import JAT, JATConfig
 from ._losses import LossWeights, frame_losses, interpenetration, penetration_surfaces, shape_consistency
 from ._phdt import crop_roots, params_to_joints
@@ -60,9 +60,7 @@ class TransformerTrainConfig:
     """Everything that determines one transformer's training (written to ``config.json``)."""
 
     data: DataConfig = DataConfig()
-    validation: DataConfig = DataConfig(clips=("02_01_walk", "60_03_61_03_salsa"), renders=1, augmented_epochs=1,
-                                        jitter=False, flip=False, seed=1_000)
-    """Fresh renders of training clips, one of them two-person: validation never sees a test clip."""
+    validation: DataConfig = VALIDATION_DATA
     model: JATConfig = JATConfig()
     losses: LossWeights = LossWeights()
     movie: StageConfig | None = StageConfig(steps=600, batch_size=16, learning_rate=3e-4)

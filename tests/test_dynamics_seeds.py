@@ -1,5 +1,6 @@
-"""Mean and spread over training seeds of experiments.dynamics runs (experiments/dynamics_study/_seeds.py,
-``python -m experiments.dynamics_seeds``)."""
+"""Mean and spread over training seeds: of experiments.dynamics runs (experiments/dynamics_study/_seeds.py,
+``python -m experiments.dynamics_seeds``) and of the renders study's candidates (``_renders.py``, ``python -m
+experiments.dynamics_renders``; its training and metrics are tested in test_dynamics_train.py)."""
 
 import json
 
@@ -7,8 +8,8 @@ import numpy as np
 import pytest
 
 from dynamics import HORIZONS
-from experiments import _cli, dynamics_seeds
-from experiments.dynamics_study import seeds_markdown, seeds_summary
+from experiments import _cli, dynamics_renders, dynamics_seeds
+from experiments.dynamics_study import renders_markdown, renders_summary, seeds_markdown, seeds_summary
 
 _METHODS = ("MPJAT", "ZeroMotion")
 
@@ -70,4 +71,21 @@ def test_the_command_writes_the_tables_and_refuses_a_folder_without_results(tmp_
         with pytest.raises(SystemExit) as exit_info:
             _cli.parse(dynamics_seeds.Config, ["--runs", *argv, "--out", str(tmp_path / "x")], prog="dynamics_seeds")
         assert exit_info.value.code == 2
+        assert message in capsys.readouterr().err
+
+
+def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_bad_options(capsys):
+    runs = [{"renders": count, "seed": seed,
+             "metrics": {"walk": {"mpjpe_mm": 100.0 + count + seed, "root_mm": 10.0 * seed, "depth_ratio": 0.9 + seed / 100}}}
+            for count in (2, 8) for seed in (0, 1, 2)]
+    summary = renders_summary(runs)
+    assert list(summary) == ["2", "8"]
+    assert summary["8"]["walk"]["mpjpe_mm"] == pytest.approx({"mean": 109.0, "sd": 1.0})
+    config = {"seeds": [0, 1, 2], "validation": {"renders": 3, "clips": ["walk"], "seed": 1000}}
+    assert "| 8 | 109.0 ± 1.0 | 10.0 ± 10.0 | 0.910 ± 0.010 |" in renders_markdown({"config": config, "summary": summary})
+    assert renders_summary(runs[:1])["2"]["walk"]["root_mm"] == {"mean": 0.0, "sd": 0.0}  # one seed: no spread
+    for argv, message in ((["--renders", "2", "2"], "--renders needs distinct values"),
+                          (["--renders", "0", "2"], "must be >= 1"), (["--seeds"], "--seeds needs distinct values")):
+        with pytest.raises(SystemExit):
+            _cli.parse(dynamics_renders.Config, ["--out", "x", *argv], prog="dynamics_renders")
         assert message in capsys.readouterr().err

@@ -158,12 +158,33 @@ def test_a_run_writes_every_stage(full_run):
     image, movie, ar = (per_stage[stage] for stage in STAGES)
     frame_terms = {"loss", "smpl", "joints_3d", "keypoints_2d", "shape_prior", "adversarial", "discriminator",
                    "grad_norm"}
-    assert frame_terms <= set(image[0]) and "val_mpjpe_mm" in image[1] and "val_mpjpe_mm" not in image[2]
+    assert frame_terms <= set(image[0]) and "val_mpjpe_mm" not in image[2]
+    assert {"val_mpjpe_mm", "val_root_mm", "val_depth_ratio"} <= set(image[1])
     assert frame_terms | {"delta-5", "delta-10", "shape_consistency"} <= set(movie[0]) and movie[3]["val_mpjpe_mm"] > 0
     assert frame_terms | {"temporal", "translation", "shape_consistency"} <= set(ar[0])
     assert ar[3]["val_future_mpjpe_mm"] > 0 and ar[3]["val_future_root_mm"] > 0
     # One feature file per DataConfig, for this run's backbone.
     assert len(list(Path(config.cache_dir).glob("dynamics_features_*.npy"))) == 2
+
+
+def test_the_conditioning_stage_alone_is_train_s_first_and_its_metrics_match_a_per_frame_reference(
+        full_run, cache_dir, tmp_path):
+    config, full_dir, _, _, _ = full_run
+    model = dynamics.train_conditioning(config, tmp_path, BODY, resume=False, progress=False)
+    assert _untimed(_records(tmp_path / "image" / "log.jsonl")) == _untimed(_records(full_dir / "image" / "log.jsonl"))
+    assert not (tmp_path / "movie").exists()
+
+    rows = dynamics.build_frames(config.validation, BODY, cache_dir, progress=False)
+    metrics = dynamics.conditioning_metrics(BODY, model, rows, batch_size=5)  # batches of 5 and a remainder
+    params = model.hmr(model.backbone(jax.numpy.asarray(rows.crops, np.float32) / 255.0))
+    joints = np.asarray(dynamics.params_to_joints(BODY, params, jax.numpy.zeros_like(params.camera)))
+    relative = lambda j: j - j[:, :1]  # noqa: E731
+    mpjpe = np.linalg.norm(relative(joints) - relative(rows.joints3d), axis=-1).mean()
+    roots = np.array([geometry.crop_camera_to_translation(camera, box, K)
+                      for camera, box, K in zip(np.asarray(params.camera), rows.boxes, rows.K)])
+    assert metrics["mpjpe_mm"] == pytest.approx(1000 * mpjpe, rel=1e-4)
+    assert metrics["root_mm"] == pytest.approx(1000 * np.linalg.norm(roots - rows.root, axis=-1).mean(), rel=1e-4)
+    assert metrics["depth_ratio"] == pytest.approx(np.mean(roots[:, 2] / rows.root[:, 2]), rel=1e-4)
 
 
 def test_resume_after_a_kill_in_a_later_stage_is_bit_identical(full_run, tmp_path):

@@ -22,10 +22,11 @@ _CONDITIONING = {"mpjpe": "MPJPE (mm)", "pa_mpjpe": "PA-MPJPE (mm)", "root": "ro
 _PREDICTION = {"mpjpe": "MPJPE (mm) ↓", "pa_mpjpe": "PA-MPJPE (mm) ↓", "root": "root (mm) ↓"}
 
 
-def _mean_and_sd(*values: float | list[float]) -> dict[str, float | list[float]]:
+def mean_and_sd(*values: float | list[float]) -> dict[str, float | list[float]]:
+    """Mean and sample standard deviation (0 for one value) of numbers, or of per-frame lists frame by frame."""
     stacked = np.asarray(values, dtype=float)  # (runs,) or (runs, frames)
-    mean, sd = stacked.mean(0), stacked.std(0, ddof=1)
-    return {"mean": mean.tolist(), "sd": sd.tolist()}
+    sd = stacked.std(0, ddof=1) if len(stacked) > 1 else np.zeros_like(stacked[0])
+    return {"mean": stacked.mean(0).tolist(), "sd": sd.tolist()}
 
 
 def _per_frame(value) -> bool:
@@ -51,16 +52,17 @@ def seeds_summary(results: Sequence[Mapping]) -> dict:
     for group in summaries[0]:
         runs = [summary[group] for summary in summaries]
         out[group] = {name: (runs[0][name] if name == "samples"
-                             else jax.tree.map(_mean_and_sd, *(run[name] for run in runs), is_leaf=_per_frame))
+                             else jax.tree.map(mean_and_sd, *(run[name] for run in runs), is_leaf=_per_frame))
                       for name in runs[0]}
         out[group]["below_zero_motion"] = {
-            method: _mean_and_sd(*(np.subtract(run["prediction"][method]["mpjpe"],
+            method: mean_and_sd(*(np.subtract(run["prediction"][method]["mpjpe"],
                                                run["prediction"][_BASELINE]["mpjpe"]).tolist() for run in runs))
             for method in runs[0]["prediction"] if method != _BASELINE}
     return out
 
 
-def _cell(value: Mapping, frame: int | None = None, digits: int = 1) -> str:
+def mean_sd_cell(value: Mapping, frame: int | None = None, digits: int = 1) -> str:
+    """``"mean ± sd"`` of a ``{"mean", "sd"}`` cell (at index ``frame`` of per-frame lists)."""
     mean, sd = (value["mean"], value["sd"]) if frame is None else (value["mean"][frame], value["sd"][frame])
     return f"{mean:.{digits}f} ± {sd:.{digits}f}"
 
@@ -74,7 +76,7 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
     for group, result in summary.items():
         lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
                   "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
-        lines += [f"| {method} | " + " | ".join(_cell(metrics[m]) for m in _CONDITIONING) + " |"
+        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m]) for m in _CONDITIONING) + " |"
                   for method, metrics in result["conditioning"].items()]
         tables = [(f"Prediction: {title} at future frame", {method: metrics[metric]
                                                             for method, metrics in result["prediction"].items()}, 1)
@@ -86,7 +88,7 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
                            result["penetration"], 2))
         for title, rows, digits in tables:
             lines += ["", f"### {title}", "", *horizon_header]
-            lines += [f"| {method} | " + " | ".join(_cell(value, k - 1, digits) for k in HORIZONS) + " |"
+            lines += [f"| {method} | " + " | ".join(mean_sd_cell(value, k - 1, digits) for k in HORIZONS) + " |"
                       for method, value in rows.items()]
         lines.append("")
     return "\n".join(lines)

@@ -1,0 +1,63 @@
+"""How many videos to render per training clip (``DataConfig.renders``), chosen on validation: the conditioning
+stage (the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks
+give the conditioning error and the root) trained on each candidate's renders with each seed, the same steps, and
+scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip).
+
+    python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
+
+Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
+trainings are resumable in OUT/train (run the same command again after a kill). Logic:
+:mod:`experiments.dynamics_study`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import geometry
+from dynamics import VALIDATION_DATA
+from experiments import _cli
+from experiments.dynamics import training_configs
+from experiments.dynamics_study import run_renders_study
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    out: Path
+    """Output folder."""
+    renders: tuple[int, ...] = (2, 4, 8)
+    """Candidate videos per training clip (the shipped models: 2)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds per candidate."""
+    validation_renders: int = 3
+    """Fresh videos per validation clip (dynamics.VALIDATION_DATA's clips and seed): the camera distances scored."""
+    quick: bool = False
+    """A smoke run: the quick training of experiments.dynamics (a few steps, two clips), one validation render."""
+    data_workers: int = 1
+    """CPU processes that render the videos (the same frames as one)."""
+    progress: bool = True
+    """Progress bars."""
+
+    def __post_init__(self) -> None:
+        for option, values in (("--renders", self.renders), ("--seeds", self.seeds)):
+            if not values or len(set(values)) != len(values):
+                raise ValueError(f"{option} needs distinct values, got {list(values)}")
+        if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
+            raise ValueError("--renders, --validation-renders and --data-workers must be >= 1")
+
+
+def main(config: Config) -> None:
+    base, _ = training_configs("small", 0, config.quick, None)
+    validation = dataclasses.replace(VALIDATION_DATA, renders=1 if config.quick else config.validation_renders)
+    with _cli.run_folder(config.out, keep=("train",)) as out:
+        results = run_renders_study(out, base, config.renders, config.seeds, validation,
+                                    geometry.stand_in_body_model(), log=_cli.jsonl_log(out), progress=config.progress,
+                                    data_workers=config.data_workers)
+        report = (out / "results.md").read_text()
+    print(report)
+    print(f"wrote {config.out}/results.json, results.md ({results['seconds']} s)")
+
+
+if __name__ == "__main__":
+    _cli.run(main, Config, description=__doc__)
