@@ -13,7 +13,9 @@ Metrics per frame, averaged over samples (:data:`METRICS`):
 - ``pck``: percentage of 2D joints within ``alpha`` (0.05) times the longer side of the person's tight box, with
   the predicted joints projected through the predicted root, so it scores where the person is, too;
 - ``root``: mm between predicted and true pelvis in the camera frame; the thesis' metrics ignore where people go
-  beyond PCK, so we add it.
+  beyond PCK, so we add it;
+- ``depth_ratio``: the predicted pelvis' depth over the true one (below 1: people placed too near the camera),
+  the part of the root error a monocular crop camera gets least right.
 
 Conditioning is scored on the observed frames every method reconstructs: from the 13th (PHD+T's receptive field).
 Prediction is scored at future frames 1, 5, 10, 20 and 30 (:data:`HORIZONS`) and, for the plot, at every one.
@@ -47,7 +49,7 @@ __all__ = ["EvalConfig", "HORIZONS", "METRICS", "SCENE_BATCH", "forecast_scenes"
            "predict_windows", "summarise", "zero_motion"]
 
 HORIZONS: tuple[int, ...] = (1, 5, 10, 20, 30)
-METRICS: tuple[str, ...] = ("pa_mpjpe", "mpjpe", "pck", "root")
+METRICS: tuple[str, ...] = ("pa_mpjpe", "mpjpe", "pck", "root", "depth_ratio")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,7 +89,7 @@ def zero_motion(observed: Observation, horizon: int) -> Rollout:
 
 def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Array, "*b 3"], rows: Frames,
                   pck_alpha: float) -> dict[str, Array]:
-    """The :data:`METRICS` of each frame (``*b``): mm, mm, percent, mm."""
+    """The :data:`METRICS` of each frame (``*b``): mm, mm, percent, mm, a ratio."""
     joints = params_to_joints(body, params, root)
     truth = jnp.asarray(rows.joints3d)
     pixels = geometry.project_pinhole(jnp.asarray(rows.K), joints)
@@ -97,6 +99,7 @@ def frame_metrics(body: geometry.BodyModel, params: SMPLParams, root: Float[Arra
         "mpjpe": 1000.0 * geometry.mpjpe_root_relative(joints, truth, 0),
         "pck": 100.0 * geometry.pck_2d(pixels, jnp.asarray(rows.joints2d), pck_alpha, box_size=box_size),
         "root": 1000.0 * jnp.linalg.norm(root - jnp.asarray(rows.root), axis=-1),
+        "depth_ratio": root[..., 2] / jnp.asarray(rows.root)[..., 2],
     }
 
 

@@ -79,7 +79,7 @@ def test_single_person_test_subjects_never_train_and_no_test_take_trains():
     assert not takes(TEST_MULTI_PERSON_CLIPS) & takes(TRAIN_CLIPS)
 
 
-def test_the_ground_truth_scores_perfectly_and_a_shift_moves_only_root_and_pck():
+def test_the_ground_truth_scores_perfectly_and_a_shift_moves_only_root_pck_and_depth():
     frames = true_frames(np.random.default_rng(1), 5)
     params = true_params(frames)
     metrics = frame_metrics(BODY, params, jnp.asarray(frames.root), frames, 0.05)
@@ -87,10 +87,14 @@ def test_the_ground_truth_scores_perfectly_and_a_shift_moves_only_root_and_pck()
     assert_allclose(metrics["pa_mpjpe"], 0.0, atol=1e-5)
     assert_allclose(metrics["root"], 0.0, atol=1e-9)
     assert_allclose(metrics["pck"], 100.0)
+    assert_allclose(metrics["depth_ratio"], 1.0, rtol=1e-6)
     shifted = frame_metrics(BODY, params, jnp.asarray(frames.root) + jnp.array([[0.3, 0, 0]]), frames, 0.05)
     assert_allclose(shifted["mpjpe"], 0.0, atol=1e-9)
     assert_allclose(shifted["root"], 300.0, rtol=1e-9)
+    assert_allclose(shifted["depth_ratio"], 1.0, rtol=1e-6)
     assert np.all(np.asarray(shifted["pck"]) < 50.0)
+    nearer = frame_metrics(BODY, params, jnp.asarray(frames.root) * 0.8, frames, 0.05)  # along the viewing ray
+    assert_allclose(nearer["depth_ratio"], 0.8, rtol=1e-6)
 
 
 def test_losses_vanish_at_the_truth_except_the_shape_prior():

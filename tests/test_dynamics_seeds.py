@@ -16,8 +16,8 @@ _METHODS = ("MPJAT", "ZeroMotion")
 
 def _results(rng: np.random.Generator, frames: int = 30) -> dict:
     """A results.json of experiments.dynamics with random numbers, one two-person group."""
-    metrics = lambda: {m: float(rng.uniform(50, 300)) for m in ("mpjpe", "pa_mpjpe", "pck", "root")}  # noqa: E731
-    per_frame = lambda: {m: rng.uniform(50, 300, frames).tolist() for m in ("mpjpe", "pa_mpjpe", "pck", "root")}  # noqa: E731
+    metrics = lambda: {m: float(rng.uniform(50, 300)) for m in ("mpjpe", "pa_mpjpe", "pck", "root", "depth_ratio")}  # noqa: E731
+    per_frame = lambda: {m: rng.uniform(50, 300, frames).tolist() for m in ("mpjpe", "pa_mpjpe", "pck", "root", "depth_ratio")}  # noqa: E731
     group = {"samples": 148, "conditioning": {m: metrics() for m in _METHODS},
              "prediction": {m: per_frame() for m in _METHODS},
              "penetration": {m: rng.uniform(0, 1, frames).tolist() for m in _METHODS + ("ground truth",)}}

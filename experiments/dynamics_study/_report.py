@@ -15,20 +15,21 @@ from dynamics import HORIZONS
 __all__ = ["overlay_meshes", "plot_prediction", "results_markdown"]
 
 _NAMES = {"pa_mpjpe": "PA-MPJPE (mm) ↓", "mpjpe": "MPJPE (mm) ↓", "pck": "PCK@0.05 (%) ↑", "root": "root (mm) ↓"}
+_CONDITIONING = {**_NAMES, "depth_ratio": "depth / true depth"}
 _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
 
 
 def results_markdown(summary: Mapping[str, dict]) -> str:
-    """Per sample group: a conditioning table (Table 5.2's layout), one prediction table per metric of
-    :data:`~dynamics.METRICS` at :data:`HORIZONS` (Tables 5.4-5.11's), and for two-person samples the mean
+    """Per sample group: a conditioning table (Table 5.2's layout, and the depth ratio), one prediction table per
+    metric of :data:`~dynamics.METRICS` but the depth ratio at :data:`HORIZONS` (Tables 5.4-5.11's), and for two-person samples the mean
     interpenetration depth of every method and of the ground truth."""
     horizon_header = ["| method | " + " | ".join(f"@{k}" for k in HORIZONS) + " |", "|---|" + "---|" * len(HORIZONS)]
     lines = []
     for group, result in summary.items():
         lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
-                  "| method | " + " | ".join(_NAMES.values()) + " |", "|---|" + "---|" * len(_NAMES)]
+                  "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
         for method, metrics in result["conditioning"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.1f}" for m in _NAMES) + " |")
+            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.{_digits(m)}f}" for m in _CONDITIONING) + " |")
         for metric, title in _NAMES.items():
             lines += ["", f"### Prediction: {title} at future frame", "", *horizon_header]
             for method, metrics in result["prediction"].items():
@@ -40,6 +41,10 @@ def results_markdown(summary: Mapping[str, dict]) -> str:
                 lines.append(f"| {method} | " + " | ".join(f"{values[k - 1]:.2f}" for k in HORIZONS) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def _digits(metric: str) -> int:
+    return 3 if metric == "depth_ratio" else 1
 
 
 def plot_prediction(summary: Mapping[str, dict], group: str, path) -> None:

@@ -18,7 +18,8 @@ __all__ = ["seeds_markdown", "seeds_summary"]
 
 _BASELINE = "ZeroMotion"
 _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
-_CONDITIONING = {"mpjpe": "MPJPE (mm)", "pa_mpjpe": "PA-MPJPE (mm)", "root": "root (mm)"}
+_CONDITIONING = {"mpjpe": "MPJPE (mm)", "pa_mpjpe": "PA-MPJPE (mm)", "root": "root (mm)",
+                 "depth_ratio": "depth / true depth"}
 _PREDICTION = {"mpjpe": "MPJPE (mm) ↓", "pa_mpjpe": "PA-MPJPE (mm) ↓", "root": "root (mm) ↓"}
 
 
@@ -76,7 +77,8 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
     for group, result in summary.items():
         lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
                   "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
-        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m]) for m in _CONDITIONING) + " |"
+        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m], digits=3 if m == "depth_ratio" else 1)
+                                                     for m in _CONDITIONING) + " |"
                   for method, metrics in result["conditioning"].items()]
         tables = [(f"Prediction: {title} at future frame", {method: metrics[metric]
                                                             for method, metrics in result["prediction"].items()}, 1)
