@@ -50,8 +50,9 @@ class Config:
 def main(config: Config) -> None:
     base, _ = training_configs("small", 0, config.quick, None)
     validation = dataclasses.replace(VALIDATION_DATA, renders=1 if config.quick else config.validation_renders)
+    workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out:
-        results = run_renders_study(out, base, config.renders, config.seeds, validation,
+        results = run_renders_study(out, workdir, base, config.renders, config.seeds, validation,
                                     geometry.stand_in_body_model(), log=_cli.jsonl_log(out), progress=config.progress,
                                     data_workers=config.data_workers)
         report = (out / "results.md").read_text()

@@ -25,21 +25,21 @@ __all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
 _METRICS = {"mpjpe_mm": "MPJPE (mm)", "root_mm": "root (mm)", "depth_ratio": "depth / true depth"}
 
 
-def run_renders_study(out: Path, base: TrainConfig, renders: Sequence[int], seeds: Sequence[int],
+def run_renders_study(out: Path, workdir: Path, base: TrainConfig, renders: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, log: Callable[[dict], None],
                       progress: bool, data_workers: int) -> dict:
     """Train ``base`` (its data, steps and model) with each number of ``renders`` per clip and each of ``seeds`` in
-    ``out/train/renders<R>_seed<S>`` (resumable; one render cache in ``out/train/data_cache``), score each on
+    ``workdir/renders<R>_seed<S>`` (resumable; one render cache in ``workdir/data_cache``), score each on
     ``validation`` per clip and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
-    cache_dir = (out / "train" / "data_cache").resolve()
+    cache_dir = (workdir / "data_cache").resolve()
     validation_frames = build_frames(validation, body, cache_dir, progress, data_workers)
     runs = []
     for count in renders:
         for seed in seeds:
             config = dataclasses.replace(base, data=dataclasses.replace(base.data, renders=count),
                                          validation=validation, seed=seed, cache_dir=str(cache_dir))
-            model = train_conditioning(config, out / "train" / f"renders{count}_seed{seed}", body, resume=True,
+            model = train_conditioning(config, workdir / f"renders{count}_seed{seed}", body, resume=True,
                                        log=lambda record, count=count, seed=seed: log(
                                            {"renders": count, "seed": seed, **record}),
                                        progress=progress, data_workers=data_workers)
