@@ -108,7 +108,8 @@ def cmu_expmap_files(data_root: str | os.PathLike | None = None, split: str = "t
         raise ValueError(f"split must be one of {_SPLITS}, got {split!r}")
     root = find_data_root(data_root, "cmu_expmap")
     if root is None:
-        raise ValueError("no data folder: pass data_root or set $MVMOCAP_DATA_ROOT (a folder with cmu_expmap/)")
+        raise ValueError("no data folder: pass data_root (--data-root on the command line) or set $MVMOCAP_DATA_ROOT "
+                         "(a folder with cmu_expmap/)")
     files = sorted((root / "cmu_expmap" / split).glob("*/*.txt"))
     if not files:
         raise ValueError(f"{root / 'cmu_expmap' / split} holds no <action>/<file>.txt")

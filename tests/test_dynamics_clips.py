@@ -83,10 +83,12 @@ def test_the_command_refuses_a_missing_clip_file_on_one_line(tmp_path):
     (["--clips"], "--clips names no clip"),
     (["--recipe", "huge"], "--recipe must be one of ('small', 'large'), got 'huge'"),
     (["--data-workers", "0"], "--data-workers must be >= 1, got 0"),
+    (["--train", "--recipe", "large"], "no data folder: pass data_root (--data-root on the command line)"),
 ])
-def test_the_options_refuse_bad_values_before_any_work(options, message, capsys):
+def test_the_options_refuse_bad_values_before_any_work(options, message, capsys, monkeypatch):
     from experiments import _cli, dynamics
 
+    monkeypatch.delenv("MVMOCAP_DATA_ROOT", raising=False)  # the large recipe finds no data folder
     with pytest.raises(SystemExit) as exit_info:
         _cli.parse(dynamics.Config, ["--out", "x", *options], prog="dynamics")
     error = capsys.readouterr().err
