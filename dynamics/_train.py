@@ -332,27 +332,28 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
     return backbone, phdt
 
 
+@partial(jax.jit, static_argnums=0)
+def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, rows: Frames) -> jax.Array:
+    """Sums over ``rows`` of :func:`conditioning_metrics`' three per-frame values (metres, metres, a ratio)."""
+    model = nnx.merge(graphdef, state)
+    params = model.hmr(model.backbone(_crops(rows)))
+    joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
+    root = crop_roots(params, rows.boxes, rows.K)
+    return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
+                      jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)),
+                      jnp.sum(root[:, 2] / rows.root[:, 2])])
+
+
 def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames: Frames,
                          batch_size: int = 256) -> dict[str, float]:
-    """Stage 1's network on single frames (the first ``batch_size`` at a time): root-relative MPJPE (``mpjpe_mm``),
-    the error of the pelvis its crop camera places (``root_mm``), and the mean ratio of that pelvis' depth to the
-    true one (``depth_ratio``; below 1: people placed too near the camera)."""
+    """Stage 1's network on single frames (``batch_size`` at a time, one compilation per batch shape):
+    root-relative MPJPE (``mpjpe_mm``), the error of the pelvis its crop camera places (``root_mm``), and the mean
+    ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed too near the camera)."""
     graphdef, state = nnx.split(model)
-
-    @jax.jit
-    def sums(state, rows: Frames) -> jax.Array:
-        model = nnx.merge(graphdef, state)
-        params = model.hmr(model.backbone(_crops(rows)))
-        joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
-        root = crop_roots(params, rows.boxes, rows.K)
-        return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
-                          jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)),
-                          jnp.sum(root[:, 2] / rows.root[:, 2])])
-
     total = np.zeros(3)
     for first in range(0, frames.num_frames, batch_size):
-        total += np.asarray(sums(state, jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]),
-                                                     frames)))
+        rows = jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]), frames)
+        total += np.asarray(_conditioning_sums(graphdef, state, body, rows))
     mpjpe, root, ratio = total / frames.num_frames
     return {"mpjpe_mm": 1000.0 * mpjpe, "root_mm": 1000.0 * root, "depth_ratio": ratio}
 
