@@ -153,10 +153,15 @@ def crop_square(image: UInt8[np.ndarray, "H W 3"], box: Float[np.ndarray, "4"], 
                           borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
 
 
+_RENDERING_VERSION = 2
+"""Part of every render cache's key, raised whenever rendering changes what a config gives, so that a cache of older
+renders is never reused (2: one generator per render, 2026-11-27)."""
+
+
 def _cache_file(config: DataConfig, clips: list[mocap.Clip], cache_dir: Path) -> Path:
-    name = json.dumps(training.to_jsonable(config), sort_keys=True)
+    name = f"rendering {_RENDERING_VERSION} " + json.dumps(training.to_jsonable(config), sort_keys=True)
     # A motion file is named by its path only: its joints join the key, so that a render of another file at that
-    # path (or of an .amc beside another .asf) is never reused. Shipped clips keep the key they had.
+    # path (or of an .amc beside another .asf) is never reused.
     name += "".join(hashlib.sha1(clip.body25.tobytes() + clip.structri17.tobytes()).hexdigest()
                     for spec, clip in zip(config.clips, clips) if mocap.clip_files(spec))
     return cache_dir / f"dynamics_frames_{hashlib.sha1(name.encode()).hexdigest()[:16]}.npz"

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import dynamics._data
 import mocap
 import training
 from dynamics import TRAIN_CLIPS, DataConfig
@@ -48,15 +49,17 @@ def test_a_data_config_takes_motion_files_and_pairs_of_them_and_refuses_the_rest
         mocap.load_clip_file(f"{walk}+{_expmap_file(tmp_path / 'short.txt', frames=20)}")
 
 
-def test_the_cache_key_tells_motion_files_apart_and_keeps_the_shipped_clips_key(tmp_path):
+def test_the_cache_key_tells_motion_files_and_rendering_versions_apart(tmp_path, monkeypatch):
     path = _expmap_file(tmp_path / "walk.txt")
     config = DataConfig(clips=(str(path),))
     first = _cache_file(config, [mocap.load_clip_file(path)], tmp_path)
     _expmap_file(path, bend=0.5)  # another motion at the same path
     assert _cache_file(config, [mocap.load_clip_file(path)], tmp_path) != first
     shipped = DataConfig(clips=("02_01_walk",))
-    key = hashlib.sha1(json.dumps(training.to_jsonable(shipped), sort_keys=True).encode()).hexdigest()[:16]
-    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name == f"dynamics_frames_{key}.npz"
+    key = hashlib.sha1(("rendering 2 " + json.dumps(training.to_jsonable(shipped), sort_keys=True)).encode())
+    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name == f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    monkeypatch.setattr(dynamics._data, "_RENDERING_VERSION", 3)  # rendering changed: the old renders are not reused
+    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name != f"dynamics_frames_{key.hexdigest()[:16]}.npz"
 
 
 @pytest.mark.data
