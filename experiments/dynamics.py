@@ -44,10 +44,11 @@ RECIPES = ("small", "large")
 backbone, more rendered motion)."""
 
 
-def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path | None
+def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path | None, renders: int | None = None
                      ) -> tuple[TrainConfig, TransformerTrainConfig]:
     """The backbone and PHD+T run, and the transformers' (JAT's, as :func:`dynamics.train_all` takes it), of
-    ``recipe``; ``quick``: a few steps per stage on two clips of its data (a smoke run).
+    ``recipe``; ``quick``: a few steps per stage on two clips of its data, rendered once (a smoke run); ``renders``:
+    videos per training clip instead of the recipe's.
 
     ``large`` takes 128 px crops and a ResNet twice as wide with two blocks per stage, renders every training clip
     and every file of the CMU-Mocap benchmark's train split (``<data_root>/cmu_expmap/train``, single-person motion
@@ -71,6 +72,9 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
             movie=movie, ar=ar,
             multi_person_movie=StageConfig(steps=1_500, batch_size=32, learning_rate=1e-4, warmup_steps=150),
             checkpoint_interval=500, validation_interval=500)
+    if renders is not None:
+        data = dataclasses.replace(phdt.data, renders=renders)
+        phdt, transformers = dataclasses.replace(phdt, data=data), dataclasses.replace(transformers, data=data)
     if quick:
         data = dataclasses.replace(phdt.data, clips=QUICK_CLIPS, renders=1, augmented_epochs=2)
         phdt = dataclasses.replace(phdt, data=data, **QUICK_TRAIN)
@@ -108,6 +112,9 @@ class Config:
     """Training recipe (with --train or --train-transformers): 'small', the shipped models, sized for a CPU;
     'large', sized for one GPU: 128 px crops, a wider and deeper ResNet, the CMU-Mocap benchmark's train split
     rendered as extra motion (needs --data-root), ten times the steps."""
+    renders: int | None = None
+    """Videos rendered per training clip (with --train or --train-transformers; default: the recipe's, 2 for
+    'small' as the shipped models; `python -m experiments.dynamics_renders` compares counts on validation)."""
     seed: int = 0
     """Training seed (with --train or --train-transformers)."""
     data_workers: int = 1
@@ -129,13 +136,15 @@ class Config:
             raise ValueError(f"--recipe must be one of {RECIPES}, got {self.recipe!r}")
         if self.data_workers < 1:
             raise ValueError(f"--data-workers must be >= 1, got {self.data_workers}")
+        if self.renders is not None and self.renders < 1:
+            raise ValueError(f"--renders must be >= 1, got {self.renders}")
         self.evaluation()  # refuses a clip that is neither shipped nor files before any work
         if self.train or self.train_transformers:
             self.training()  # refuses the large recipe without the benchmark's files before any work
 
     def training(self) -> tuple[TrainConfig, TransformerTrainConfig]:
         """The training runs of --recipe (:func:`training_configs`)."""
-        return training_configs(self.recipe, self.seed, self.quick, self.data_root)
+        return training_configs(self.recipe, self.seed, self.quick, self.data_root, self.renders)
 
     def evaluation(self) -> EvalConfig:
         """The held-out evaluation on --clips (each file as a path that exists, relative ones found under the data

@@ -86,6 +86,7 @@ def test_the_command_refuses_a_missing_clip_file_on_one_line(tmp_path):
     (["--clips"], "--clips names no clip"),
     (["--recipe", "huge"], "--recipe must be one of ('small', 'large'), got 'huge'"),
     (["--data-workers", "0"], "--data-workers must be >= 1, got 0"),
+    (["--train", "--renders", "0"], "--renders must be >= 1, got 0"),
     (["--train", "--recipe", "large"], "no data folder: pass data_root (--data-root on the command line)"),
 ])
 def test_the_options_refuse_bad_values_before_any_work(options, message, capsys, monkeypatch):
@@ -114,6 +115,14 @@ def test_the_large_recipe_is_consistent_and_renders_the_benchmark_train_split(da
     expmap = _cli.expmap_clips(data_root, "train")
     expected = dynamics.QUICK_CLIPS if quick else TRAIN_CLIPS + expmap
     assert phdt.data.clips == expected and len(expmap) == 72
+
+
+def test_renders_per_clip_reach_both_trainings_and_quick_renders_once():
+    from experiments import dynamics
+
+    phdt, transformers = dynamics.training_configs("small", 0, False, None, renders=8)
+    assert phdt.data.renders == transformers.data.renders == 8 and phdt.data == transformers.data
+    assert dynamics.training_configs("small", 0, True, None, renders=8)[0].data.renders == 1
 
 
 def test_the_strip_titles_its_rows_and_columns():
