@@ -18,6 +18,7 @@ import geometry
 import training
 from dynamics import DataConfig, TrainConfig, build_frames, conditioning_metrics, train_conditioning
 
+from ._report import digits
 from ._seeds import mean_and_sd, mean_sd_cell
 
 __all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
@@ -83,8 +84,7 @@ def renders_markdown(results: dict) -> str:
         lines += [f"## {clip}", "", "| renders | " + " | ".join(_METRICS.values()) + " |",
                   "|---|" + "---|" * len(_METRICS)]
         for count, per_clip in results["summary"].items():
-            lines.append(f"| {count} | " + " | ".join(mean_sd_cell(per_clip[clip][name],
-                                                                    digits=3 if name == "depth_ratio" else 1)
+            lines.append(f"| {count} | " + " | ".join(mean_sd_cell(per_clip[clip][name], digits=digits(name))
                                                        for name in _METRICS) + " |")
         lines.append("")
     return "\n".join(lines)

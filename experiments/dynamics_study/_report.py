@@ -21,15 +21,15 @@ _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-pe
 
 def results_markdown(summary: Mapping[str, dict]) -> str:
     """Per sample group: a conditioning table (Table 5.2's layout, and the depth ratio), one prediction table per
-    metric of :data:`~dynamics.METRICS` but the depth ratio at :data:`HORIZONS` (Tables 5.4-5.11's), and for two-person samples the mean
-    interpenetration depth of every method and of the ground truth."""
+    metric of :data:`~dynamics.METRICS` but the depth ratio at :data:`HORIZONS` (Tables 5.4-5.11's), and for
+    two-person samples the mean interpenetration depth of every method and of the ground truth."""
     horizon_header = ["| method | " + " | ".join(f"@{k}" for k in HORIZONS) + " |", "|---|" + "---|" * len(HORIZONS)]
     lines = []
     for group, result in summary.items():
         lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
                   "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
         for method, metrics in result["conditioning"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.{_digits(m)}f}" for m in _CONDITIONING) + " |")
+            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.{digits(m)}f}" for m in _CONDITIONING) + " |")
         for metric, title in _NAMES.items():
             lines += ["", f"### Prediction: {title} at future frame", "", *horizon_header]
             for method, metrics in result["prediction"].items():
@@ -43,7 +43,8 @@ def results_markdown(summary: Mapping[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _digits(metric: str) -> int:
+def digits(metric: str) -> int:
+    """Decimals a table prints of ``metric``: millimetres and percentages to 0.1, the depth ratio to 0.001."""
     return 3 if metric == "depth_ratio" else 1
 
 

@@ -14,6 +14,8 @@ import numpy as np
 
 from dynamics import HORIZONS
 
+from ._report import digits
+
 __all__ = ["seeds_markdown", "seeds_summary"]
 
 _BASELINE = "ZeroMotion"
@@ -77,7 +79,7 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
     for group, result in summary.items():
         lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
                   "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
-        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m], digits=3 if m == "depth_ratio" else 1)
+        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m], digits=digits(m))
                                                      for m in _CONDITIONING) + " |"
                   for method, metrics in result["conditioning"].items()]
         tables = [(f"Prediction: {title} at future frame", {method: metrics[metric]
@@ -88,9 +90,9 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
         if "penetration" in result:
             tables.append(("Interpenetration: mean depth of a person's sampled vertices inside the other (mm) ↓",
                            result["penetration"], 2))
-        for title, rows, digits in tables:
+        for title, rows, decimals in tables:
             lines += ["", f"### {title}", "", *horizon_header]
-            lines += [f"| {method} | " + " | ".join(mean_sd_cell(value, k - 1, digits) for k in HORIZONS) + " |"
+            lines += [f"| {method} | " + " | ".join(mean_sd_cell(value, k - 1, decimals) for k in HORIZONS) + " |"
                       for method, value in rows.items()]
         lines.append("")
     return "\n".join(lines)
