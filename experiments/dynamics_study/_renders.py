@@ -14,6 +14,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import jax
+
 import geometry
 import training
 from dynamics import DataConfig, TrainConfig, build_frames, conditioning_metrics, train_conditioning
@@ -47,8 +49,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, renders: Sequ
             per_clip = {}
             for index, clip in enumerate(validation.clips):
                 rows = validation_frames.clip == index
-                per_clip[clip] = conditioning_metrics(body, model, type(validation_frames)(
-                    *(column[rows] for column in validation_frames)))
+                per_clip[clip] = conditioning_metrics(body, model,
+                                                      jax.tree.map(lambda column: column[rows], validation_frames))
             per_clip["all"] = conditioning_metrics(body, model, validation_frames)
             runs.append({"renders": count, "seed": seed, "metrics": per_clip})
             log({"renders": count, "seed": seed, "validation": per_clip})
