@@ -86,6 +86,7 @@ from ._procedural import procedural_clip as procedural_clip
 from ._procedural import procedural_motion as procedural_motion
 from ._render import Raster as Raster
 from ._render import Rendering as Rendering
+from ._render import covered_pixels as covered_pixels
 from ._render import face_parts as face_parts
 from ._render import rasterise as rasterise
 from ._render import render_people as render_people

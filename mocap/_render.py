@@ -4,6 +4,8 @@
 box is expanded into candidate pixels at once, pixel centres are tested against the edge functions, depth is
 interpolated perspective-correctly (1/z is linear in the image), and the nearest fragment wins each pixel. A
 pixel centre exactly on an edge shared by two triangles counts for both, so a closed mesh has no cracks.
+The triangles' vertices are projected once and their pixels found together; :func:`covered_pixels` counts
+the pixels a mesh covers without the z-buffer (a person's area alone, for the visibility of synthetic video).
 
 :func:`render_people` draws posed body meshes (:func:`geometry.body_forward`) seen by a pinhole
 :class:`geometry.Camera`: one colour per body part (:func:`face_parts`, from the skinning weights), a tint per
@@ -21,7 +23,7 @@ from jaxtyping import ArrayLike, Float, Int, UInt8
 
 from geometry import BodyModel, Camera
 
-__all__ = ["Raster", "Rendering", "face_parts", "rasterise", "render_people"]
+__all__ = ["Raster", "Rendering", "covered_pixels", "face_parts", "rasterise", "render_people"]
 
 _PART_COLOURS = np.array([  # RGB per SMPL24 joint: warm trunk, distinct limbs, left and right apart
     (200, 170, 140), (60, 120, 220), (220, 90, 60), (210, 180, 150), (80, 150, 240), (240, 120, 80),
@@ -62,49 +64,77 @@ def rasterise(
     coordinates (c, r), OpenCV's convention (``cv2.projectPoints`` puts a point projecting there on that pixel).
     A triangle with a vertex nearer than ``near`` is dropped rather than clipped; either winding is drawn.
     """
-    points, faces, K = np.asarray(points, float), np.asarray(faces), np.asarray(K, float)
+    points, faces, K = _checked(points, faces, K)
     width, height = size
+    face_index = np.full((height, width), -1, np.int64)
+    depth = np.full((height, width), np.inf)
+    face, pixel, barycentric, z = _fragments(points, faces, K, size, near)
+    fragment_depth = 1.0 / np.sum(barycentric / z, axis=1)  # 1/z is affine in the image
+    order = np.lexsort((fragment_depth, pixel))  # by pixel, nearest first
+    first = order[np.r_[True, pixel[order][1:] != pixel[order][:-1]]] if order.size else order
+    face_index.reshape(-1)[pixel[first]] = face[first]
+    depth.reshape(-1)[pixel[first]] = fragment_depth[first]
+    return Raster(face_index, depth)
+
+
+def covered_pixels(
+    points: Float[ArrayLike, "vertices 3"],
+    faces: Int[ArrayLike, "faces 3"],
+    K: Float[ArrayLike, "3 3"],
+    size: tuple[int, int],
+    near: float = 0.05,
+) -> int:
+    """How many pixels of a ``size`` image :func:`rasterise` would draw (its ``face >= 0``), without the z-buffer."""
+    points, faces, K = _checked(points, faces, K)
+    _, pixel, _, _ = _fragments(points, faces, K, size, near)
+    covered = np.zeros(size[0] * size[1], bool)
+    covered[pixel] = True
+    return int(np.count_nonzero(covered))
+
+
+def _checked(points, faces, K) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    points, faces, K = np.asarray(points, float), np.asarray(faces), np.asarray(K, float)
     if points.ndim != 2 or points.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3 or K.shape != (3, 3):
         raise ValueError(f"need points (V, 3), faces (F, 3) and K (3, 3), got {points.shape}, {faces.shape}, {K.shape}")
     if not np.all(np.isfinite(points)):
         raise ValueError("points contain NaN or inf")
     if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
         raise ValueError(f"faces index vertices outside 0..{len(points) - 1}")
-    face_index = np.full((height, width), -1, np.int64)
-    depth = np.full((height, width), np.inf)
-    triangles = points[faces]  # (F, 3 corners, 3)
-    z = triangles[..., 2]
-    keep = np.flatnonzero(np.all(z > near, axis=1))
-    if keep.size == 0:
-        return Raster(face_index, depth)
-    uv = (triangles[keep] @ K.T)[..., :2] / z[keep, :, None]
-    low = np.clip(np.ceil(uv.min(axis=1)), 0, [width, height]).astype(np.int64)
-    high = np.clip(np.floor(uv.max(axis=1)), -1, [width - 1, height - 1]).astype(np.int64)
+    return points, faces, K
+
+
+def _edge(p, q, x):  # twice the signed area of (p, q, x), per row
+    return (q[:, 0] - p[:, 0]) * (x[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (x[:, 0] - p[:, 0])
+
+
+def _fragments(points: np.ndarray, faces: np.ndarray, K: np.ndarray, size: tuple[int, int], near: float
+               ) -> tuple[Int[np.ndarray, "n"], Int[np.ndarray, "n"], Float[np.ndarray, "n 3"], Float[np.ndarray, "n 3"]]:
+    """Every (triangle, pixel) pair whose pixel centre lies in the triangle (edges included): the index into
+    ``faces``, the flat pixel index (row * width + column), the barycentric weights and the corners' depths."""
+    width, height = size
+    corner_z = points[:, 2][faces]  # (F, 3)
+    keep = np.flatnonzero(np.all(corner_z > near, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):  # vertices of dropped triangles may sit at z <= 0
+        projected = (points @ K.T)[:, :2] / points[:, 2:]
+    a, b, c = (projected[faces[keep, k]] for k in range(3))
+    low = np.clip(np.ceil(np.minimum(np.minimum(a, b), c)), 0, [width, height]).astype(np.int64)
+    high = np.clip(np.floor(np.maximum(np.maximum(a, b), c)), -1, [width - 1, height - 1]).astype(np.int64)
     extent = np.maximum(high - low + 1, 0)
     counts = extent[:, 0] * extent[:, 1]
-    owner = np.repeat(np.arange(keep.size), counts)  # one fragment per candidate pixel of each bounding box
+    owner = np.repeat(np.arange(keep.size), counts)  # one candidate per pixel of each bounding box
     offset = np.arange(owner.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    column = low[owner, 0] + offset % extent[owner, 0]
-    row = low[owner, 1] + offset // extent[owner, 0]
-    a, b, c = (uv[owner, k] for k in range(3))
-    pixel = np.stack([column, row], axis=1).astype(float)
-
-    def edge(p, q, x):  # twice the signed area of (p, q, x)
-        return (q[:, 0] - p[:, 0]) * (x[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (x[:, 0] - p[:, 0])
-
-    area = edge(a, b, c)
-    weights = np.stack([edge(b, c, pixel), edge(c, a, pixel), edge(a, b, pixel)], axis=1)
-    weights = weights * np.sign(area)[:, None]  # either winding
-    inside = (area != 0) & np.all(weights >= 0, axis=1)
-    owner, column, row = owner[inside], column[inside], row[inside]
-    barycentric = weights[inside] / np.abs(area[inside])[:, None]
-    fragment_depth = 1.0 / np.sum(barycentric / z[keep[owner]], axis=1)  # 1/z is affine in the image
-    flat = row * width + column
-    order = np.lexsort((fragment_depth, flat))  # by pixel, nearest first
-    first = order[np.r_[True, flat[order][1:] != flat[order][:-1]]] if order.size else order
-    face_index.reshape(-1)[flat[first]] = keep[owner[first]]
-    depth.reshape(-1)[flat[first]] = fragment_depth[first]
-    return Raster(face_index, depth)
+    span = extent[owner, 0]
+    column = low[owner, 0] + offset % span
+    row = low[owner, 1] + offset // span
+    centre = np.stack([column, row], axis=1).astype(float)
+    area = _edge(a, b, c)
+    p, q, r = a[owner], b[owner], c[owner]
+    weights = np.stack([_edge(q, r, centre), _edge(r, p, centre), _edge(p, q, centre)], axis=1)
+    weights = weights * np.sign(area)[owner, None]  # either winding
+    inside = (area[owner] != 0) & np.all(weights >= 0, axis=1)
+    owner = owner[inside]
+    return (keep[owner], row[inside] * width + column[inside], weights[inside] / np.abs(area[owner])[:, None],
+            corner_z[keep[owner]])
 
 
 def face_parts(model: BodyModel) -> Int[np.ndarray, "faces"]:

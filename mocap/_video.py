@@ -26,7 +26,7 @@ from jaxtyping import Array, ArrayLike, Float, UInt8
 import geometry
 from geometry import BodyModel, Camera
 
-from ._render import rasterise, render_people
+from ._render import covered_pixels, render_people
 from ._retarget import BodyMotion, _rest_joints
 
 __all__ = ["Video", "VideoConfig", "flip_video", "jitter_boxes", "mirror_pose", "synthesise_video"]
@@ -217,7 +217,7 @@ def _person_area(in_camera: Float[np.ndarray, "V 3"], faces: np.ndarray, K: Floa
     size = np.ceil(box[2:]).astype(int) - corner.astype(int) + 1
     shifted = K.copy()
     shifted[:2, 2] -= corner
-    return int(np.count_nonzero(rasterise(in_camera, faces, shifted, (int(size[0]), int(size[1]))).face >= 0))
+    return covered_pixels(in_camera, faces, shifted, (int(size[0]), int(size[1])))
 
 
 def _visibility(person_image: np.ndarray, in_camera: Float[np.ndarray, "P V 3"], faces: np.ndarray,

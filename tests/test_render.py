@@ -7,7 +7,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from geometry import Camera, body_forward, look_at, stand_in_body_model
-from mocap import face_parts, rasterise, render_people
+from mocap import covered_pixels, face_parts, rasterise, render_people
 
 K = np.array([[80.0, 0.0, 31.5], [0.0, 80.0, 23.5], [0.0, 0.0, 1.0]])
 SIZE = (64, 48)
@@ -77,6 +77,21 @@ def test_a_projected_point_lands_on_its_pixel_as_in_opencv():
     raster = rasterise(points, np.array([[0, 1, 2]]), K, SIZE)
     r, c = np.argwhere(raster.face == 0).min(axis=0)  # the triangle's top-left covered pixel
     assert (c, r) == tuple(np.ceil(pixel).astype(int))
+
+
+def test_covered_pixels_counts_what_rasterise_draws():
+    """Triangles overlapping, half outside the image and behind the camera: the count of pixels drawn, without
+    the z-buffer."""
+    rng = np.random.default_rng(1)
+    centres = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-1.0, 1.0, 40), rng.uniform(-1.0, 4.0, 40)])
+    points = (centres[:, None] + rng.normal(scale=0.3, size=(40, 3, 3))).reshape(-1, 3)
+    faces = np.arange(120).reshape(40, 3)
+    drawn = np.count_nonzero(rasterise(points, faces, K, SIZE).face >= 0)
+    assert 0.05 * np.prod(SIZE) < drawn < np.prod(SIZE)
+    assert covered_pixels(points, faces, K, SIZE) == drawn
+    assert covered_pixels(points, faces[:0], K, SIZE) == 0
+    with pytest.raises(ValueError, match="outside"):
+        covered_pixels(points, faces + 1, K, SIZE)
 
 
 @pytest.fixture(scope="module")
