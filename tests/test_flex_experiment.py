@@ -10,6 +10,7 @@ from numpy.testing import assert_allclose
 
 from experiments import _cli, flex_synthetic
 from experiments.flex_study import ExperimentConfig, train_config
+from experiments.flex_study._synthetic import mean_and_spread
 from flex import (CONFIGS, MODELS, RIG_MODELS, SKELETON_MODELS, DataConfig, Flex, averaged_monocular, load_models,
                   make_batch, predict)
 
@@ -109,3 +110,12 @@ def test_the_duplicate_joint_ablation_trains_its_rig_model_with_the_tpose(tmp_pa
         assert run.data == rig_run.data and run.data.rig == rig
         assert run.model == dataclasses.replace(rig_run.model, rest_pose="tpose", duplicate_joints=duplicate_joints)
         assert dataclasses.replace(run, model=rig_run.model) == rig_run
+
+
+def test_mean_and_spread_of_calibration_draws():
+    """Each metric's mean and sample standard deviation over the draws, and the draws' MPJPE."""
+    draws = [{"mpjpe_mm": 2.0, "mbls_mm": 1.0}, {"mpjpe_mm": 4.0, "mbls_mm": 1.0}, {"mpjpe_mm": 9.0, "mbls_mm": 4.0}]
+    summary = mean_and_spread(draws)
+    assert summary.pop("draws_mpjpe_mm") == [2.0, 4.0, 9.0]
+    assert summary == pytest.approx({"mpjpe_mm": 5.0, "mpjpe_mm_sd": np.std([2, 4, 9], ddof=1), "mbls_mm": 2.0,
+                                     "mbls_mm_sd": np.sqrt(3.0)})

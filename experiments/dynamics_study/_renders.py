@@ -19,9 +19,10 @@ import jax
 import geometry
 import training
 from dynamics import DataConfig, TrainConfig, build_frames, conditioning_metrics, train_conditioning
+from experiments._stats import mean_and_sd
 
 from ._report import digits
-from ._seeds import mean_and_sd, mean_sd_cell
+from ._seeds import mean_sd_cell
 
 __all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
 

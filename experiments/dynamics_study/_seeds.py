@@ -13,6 +13,7 @@ import jax
 import numpy as np
 
 from dynamics import HORIZONS
+from experiments._stats import mean_and_sd
 
 from ._report import digits
 
@@ -23,13 +24,6 @@ _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-pe
 _CONDITIONING = {"mpjpe": "MPJPE (mm)", "pa_mpjpe": "PA-MPJPE (mm)", "root": "root (mm)",
                  "depth_ratio": "depth / true depth"}
 _PREDICTION = {"mpjpe": "MPJPE (mm) ↓", "pa_mpjpe": "PA-MPJPE (mm) ↓", "root": "root (mm) ↓"}
-
-
-def mean_and_sd(*values: float | list[float]) -> dict[str, float | list[float]]:
-    """Mean and sample standard deviation (0 for one value) of numbers, or of per-frame lists frame by frame."""
-    stacked = np.asarray(values, dtype=float)  # (runs,) or (runs, frames)
-    sd = stacked.std(0, ddof=1) if len(stacked) > 1 else np.zeros_like(stacked[0])
-    return {"mean": stacked.mean(0).tolist(), "sd": sd.tolist()}
 
 
 def _per_frame(value) -> bool:

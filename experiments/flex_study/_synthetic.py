@@ -49,6 +49,7 @@ import mocap
 from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, SKELETON_MODELS, TEST_CLIPS,
                   VALIDATION_CLIPS, Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex,
                   make_batch, motion_metrics, normalise_2d, predict, root_position_error, train, triangulation_baseline)
+from experiments._stats import mean_and_sd
 from geometry import FLEX20, STRUCTRI17, remap_joints
 
 __all__ = ["ExperimentConfig", "RIG_NOISE_CORRELATION", "mean_and_spread", "plot_camera_poses", "run_experiment",
@@ -332,8 +333,8 @@ def mean_and_spread(draws: list[dict[str, float]]) -> dict:
     """Each metric's mean over the draws, its sample standard deviation (``<metric>_sd``) and the draws' MPJPE."""
     out = {}
     for name in draws[0]:
-        values = np.array([d[name] for d in draws])
-        out[name], out[f"{name}_sd"] = float(values.mean()), float(values.std(ddof=1))
+        summary = mean_and_sd(*(d[name] for d in draws))
+        out[name], out[f"{name}_sd"] = summary["mean"], summary["sd"]
     return out | {"draws_mpjpe_mm": [d["mpjpe_mm"] for d in draws]}
 
 
