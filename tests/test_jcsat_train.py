@@ -299,7 +299,8 @@ def test_validate_matches_the_log_and_a_hand_computation(full_run, cache_dir):
     assert figures["val_frames"] == last["val_frames"]
     assert_allclose([figures["val_mpjpe_mm"], figures["val_pcp"]], [last["val_mpjpe_mm"], last["val_pcp"]], rtol=1e-6)
     batch = window_batch(data, np.arange(config.validation_windows), np.zeros(config.validation_windows), TINY.frames)
-    pred = np.asarray(full_model(batch.points, batch.mask), np.float64)
+    pred = np.asarray(nnx.jit(lambda model, points, mask: model(points, mask))(full_model, batch.points, batch.mask),
+                      np.float64)  # compiled: eagerly, this tiny model's Sinkhorn iterations took seconds
     error = np.linalg.norm(pred - np.asarray(batch.target), axis=-1).mean(-1)[np.asarray(batch.target_valid)]
     assert_allclose(figures["val_mpjpe_mm"], 1000 * error.mean(), rtol=1e-5)
     with pytest.raises(ValueError, match="windows must be >= 1"):
