@@ -21,15 +21,17 @@ from geometry import triangulate
 from geometry._jax_guard import YNN_FUSION_OFF as WORKAROUND
 from geometry._triangulate import _triangulate_flat
 
-# Minimal repro of jax-ml/jax#39103: sum over axis 0 of a[:, :, None, :] * a[:, None, :, :].
+# Minimal repro of jax-ml/jax#39103: sum over axis 0 of a[:, :, None, :] * a[:, None, :, :]; sets ``error``. Run in this
+# process (broadcast_multiply_reduce_error) and, with an exit status, in fresh interpreters (REPRO_COMMAND).
 REPRO = """
-import sys
 import jax
 import numpy as np
 a = np.random.default_rng(0).uniform(size=(4, 4, 100_000)).astype(np.float32)
 jitted = np.asarray(jax.jit(lambda a: (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0))(a))
-expected = np.einsum("kin,kjn->ijn", a, a)
-error = float(np.abs(jitted - expected).max())
+error = float(np.abs(jitted - np.einsum("kin,kjn->ijn", a, a)).max())
+"""
+REPRO_COMMAND = REPRO + """
+import sys
 print(f"jaxlib {jax.lib.__version__ if hasattr(jax.lib, '__version__') else '?'}: max error {error:.3g}")
 sys.exit(0 if error < 1e-4 else 1)
 """
@@ -46,9 +48,9 @@ def _run(code: str, env: dict[str, str]) -> subprocess.CompletedProcess:
 
 
 def broadcast_multiply_reduce_error() -> float:
-    a = np.random.default_rng(0).uniform(size=(4, 4, 100_000)).astype(np.float32)
-    jitted = jax.jit(lambda a: (a[:, :, None, :] * a[:, None, :, :]).sum(axis=0))(a)
-    return float(np.abs(np.asarray(jitted) - np.einsum("kin,kjn->ijn", a, a)).max())
+    scope = {}
+    exec(REPRO, scope)
+    return scope["error"]
 
 
 def test_installed_jaxlib_has_no_ynn_fusion_miscompilation():
@@ -58,7 +60,7 @@ def test_installed_jaxlib_has_no_ynn_fusion_miscompilation():
     project entry point) already runs with it, which would hide the bug. A subprocess with the flag
     removed from its environment therefore tests the installed jaxlib itself: it fails on 0.10.2
     (every element wrong, max error ~35) and passes on 0.10.1."""
-    done = _run(REPRO, _without_workaround())
+    done = _run(REPRO_COMMAND, _without_workaround())
     assert done.returncode == 0, f"installed jaxlib miscompiles the repro without {WORKAROUND}:\n{done.stdout}{done.stderr}"
 
 
@@ -116,7 +118,7 @@ def test_repro_is_exact_with_the_project_configuration():
     otherwise), and in this test process (the workaround on, tests/_compile_flags.py's flags)."""
     env = user_environment(JAX_PLATFORMS="cpu")
     assert WORKAROUND in env["XLA_FLAGS"].split()
-    done = _run(REPRO, env)
+    done = _run(REPRO_COMMAND, env)
     assert done.returncode == 0, done.stdout + done.stderr
     assert WORKAROUND in os.environ.get("XLA_FLAGS", "").split()
     assert broadcast_multiply_reduce_error() < 1e-4
