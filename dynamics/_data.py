@@ -57,8 +57,9 @@ class DataConfig:
     clips: tuple[str, ...] = TRAIN_CLIPS
     """Shipped clip names, motion files of one person, or the files of two people captured together joined by ``+``
     (:func:`mocap.load_clip_file`; relative paths from the working directory)."""
-    renders: int = 2
-    """Videos per clip, each with its own camera path and body shapes."""
+    renders: int = 8
+    """Videos per clip, each with its own camera path and body shapes (8, chosen on validation over 2 and 4 by
+    ``python -m experiments.dynamics_renders``: docs/dynamics.md)."""
     augmented_epochs: int = 4
     """Variants of each video (box jitter; every second one mirrored)."""
     jitter: bool = True

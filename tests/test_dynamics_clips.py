@@ -115,14 +115,15 @@ def test_the_large_recipe_is_consistent_and_renders_the_benchmark_train_split(da
     expmap = _cli.expmap_clips(data_root, "train")
     expected = dynamics.QUICK_CLIPS if quick else TRAIN_CLIPS + expmap
     assert phdt.data.clips == expected and len(expmap) == 72
+    assert small[0].data.renders == 8 and phdt.data.renders == (1 if quick else 2)
 
 
 def test_renders_per_clip_reach_both_trainings_and_quick_renders_once():
     from experiments import dynamics
 
-    phdt, transformers = dynamics.training_configs("small", 0, False, None, renders=8)
-    assert phdt.data.renders == transformers.data.renders == 8 and phdt.data == transformers.data
-    assert dynamics.training_configs("small", 0, True, None, renders=8)[0].data.renders == 1
+    phdt, transformers = dynamics.training_configs("small", 0, False, None, renders=4)
+    assert phdt.data.renders == transformers.data.renders == 4 and phdt.data == transformers.data
+    assert dynamics.training_configs("small", 0, True, None, renders=4)[0].data.renders == 1
 
 
 def test_the_strip_titles_its_rows_and_columns():

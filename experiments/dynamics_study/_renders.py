@@ -2,8 +2,8 @@
 head, :func:`dynamics.train_conditioning`) trained on each candidate's renders with several seeds, the same steps,
 and scored on fresh validation renders of training clips (:func:`dynamics.conditioning_metrics`) per clip.
 
-More renders show the networks more camera distances and body shapes for the same motion; the shipped models'
-two renders per clip left a depth bias on the two-person test take (docs/dynamics.md). Scored: root-relative
+More renders show the networks more camera distances and body shapes for the same motion; two renders per clip
+(the default until 2026-11-28) left a depth bias on the two-person test take (docs/dynamics.md). Scored: root-relative
 MPJPE, the error of the pelvis the crop camera places, and its depth over the true depth."""
 
 from __future__ import annotations
