@@ -40,6 +40,7 @@ import geometry
 from geometry import BODY25, Camera
 
 from ._detections import BODY25_PAF_PAIRS, Detections
+from ._motion import _pad
 
 __all__ = [
     "DetectorConfig",
@@ -433,8 +434,7 @@ def view_geometry(
     n_frames = joints.shape[0]
     chunks = []
     for first in range(0, n_frames, _FRAME_CHUNK):
-        chunk = joints[first:first + _FRAME_CHUNK]
-        chunk = np.concatenate([chunk, np.repeat(chunk[-1:], _FRAME_CHUNK - chunk.shape[0], axis=0)])
+        chunk = _pad(joints[first:first + _FRAME_CHUNK], _FRAME_CHUNK)
         out = _view_geometry_jit(rig, chunk, config.occlusion_depth_margin, config.occlusion_edge)
         chunks.append([np.asarray(a)[:, : n_frames - first] for a in out])
     pixels, depth, self_occlusion, others_occlusion, height, side = (np.concatenate(parts, axis=1).swapaxes(0, 1) for parts in zip(*chunks))

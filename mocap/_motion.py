@@ -141,6 +141,7 @@ def _padded_frames(num_frames: int) -> int:
 
 
 def _pad(array: np.ndarray, size: int) -> np.ndarray:
+    """``array`` (frames first) with its last frame repeated up to ``size`` frames: finite filler the callers drop."""
     return np.concatenate([array, np.broadcast_to(array[-1:], (size - len(array),) + array.shape[1:])])
 
 
