@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
@@ -57,8 +58,8 @@ class DataConfig:
     clips: tuple[str, ...] = TRAIN_CLIPS
     """Shipped clip names, motion files of one person, or the files of two people captured together joined by ``+``
     (:func:`mocap.load_clip_file`; relative paths from the working directory)."""
-    renders: int = 8
-    """Videos per clip, each with its own camera path and body shapes (8, chosen on validation over 2 and 4 by
+    renders: int = 16
+    """Videos per clip, each with its own camera path and body shapes (16, chosen on validation over 2, 4 and 8 by
     ``python -m experiments.dynamics_renders``: docs/dynamics.md)."""
     augmented_epochs: int = 4
     """Variants of each video (box jitter; every second one mirrored)."""
@@ -160,7 +161,11 @@ renders is never reused (2: one generator per render, 2026-11-27)."""
 
 
 def _cache_file(config: DataConfig, clips: list[mocap.Clip], cache_dir: Path) -> Path:
-    name = f"rendering {_RENDERING_VERSION} " + json.dumps(training.to_jsonable(config), sort_keys=True)
+    # jax's version and XLA's flags join the key: they change the renders' rounding (a notebook that skips
+    # geometry.disable_faulty_cpu_fusion renders other bits than the command line), so neither reuses the other's.
+    xla_flags = " ".join(sorted(os.environ.get("XLA_FLAGS", "").split()))
+    name = (f"rendering {_RENDERING_VERSION} jax {jax.__version__} XLA_FLAGS {xla_flags} "
+            + json.dumps(training.to_jsonable(config), sort_keys=True))
     # A motion file is named by its path only: its joints join the key, so that a render of another file at that
     # path (or of an .amc beside another .asf) is never reused.
     name += "".join(hashlib.sha1(clip.body25.tobytes() + clip.structri17.tobytes()).hexdigest()
@@ -171,7 +176,8 @@ def _cache_file(config: DataConfig, clips: list[mocap.Clip], cache_dir: Path) ->
 def build_frames(config: DataConfig, model: geometry.BodyModel, cache_dir: str | Path | None = None,
                  progress: bool = True, workers: int = 1) -> Frames:
     """Render, augment and crop every clip of ``config`` (module docstring); cached in ``cache_dir`` when given
-    (a file named by a hash of the config and of its motion files' joints, written atomically).
+    (a file named by a hash of the config, of its motion files' joints, of jax's version and of XLA's flags,
+    written atomically).
 
     Each render draws from its own generator, seeded by ``(config.seed, clip, render)``, so ``workers`` CPU
     processes (:func:`training.process_map`) give the same frames as one."""

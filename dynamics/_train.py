@@ -97,7 +97,9 @@ class TrainConfig:
     backbone: BackboneConfig = BackboneConfig()
     model: PHDTConfig = PHDTConfig()
     losses: LossWeights = LossWeights()
-    image: StageConfig = StageConfig(steps=2000, batch_size=32, learning_rate=1e-3)
+    image: StageConfig = StageConfig(steps=8000, batch_size=32, learning_rate=1e-3)
+    """The conditioning stage (backbone and HMR head on single crops): 8000 steps, chosen on validation over 2000 by
+    ``python -m experiments.dynamics_renders --renders 16 --steps 2000 8000`` (docs/dynamics.md)."""
     movie: StageConfig = StageConfig(steps=600, batch_size=16, learning_rate=3e-4)
     ar: StageConfig = StageConfig(steps=300, batch_size=16, learning_rate=3e-4, warmup_steps=30)
     observed: int = 25

@@ -50,11 +50,11 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
     ``recipe``; ``quick``: a few steps per stage on two clips of its data, rendered once (a smoke run); ``renders``:
     videos per training clip instead of the recipe's.
 
-    ``small`` is the defaults of :class:`~dynamics.TrainConfig` and :class:`~dynamics.TransformerTrainConfig` (8
-    renders per clip). ``large`` takes 128 px crops and a ResNet twice as wide with two blocks per stage, renders
+    ``small`` is the defaults of :class:`~dynamics.TrainConfig` and :class:`~dynamics.TransformerTrainConfig` (16
+    renders per clip, 8000 conditioning steps). ``large`` takes 128 px crops and a ResNet twice as wide with two blocks per stage, renders
     every training clip and every file of the CMU-Mocap benchmark's train split (``<data_root>/cmu_expmap/train``,
     single-person motion of subjects the test clips' subjects are not known to be among) twice with four variants
-    each (its variety is the benchmark's motion; 8 renders of it would not fit in memory), and trains ten times as
+    each (its variety is the benchmark's motion; 16 renders of it would not fit in memory), and trains ten times as
     many steps with larger batches."""
     phdt, transformers = TrainConfig(seed=seed), TransformerTrainConfig(seed=seed)
     if recipe == "large":
@@ -115,7 +115,7 @@ class Config:
     'large', sized for one GPU: 128 px crops, a wider and deeper ResNet, the CMU-Mocap benchmark's train split
     rendered as extra motion (needs --data-root), ten times the steps."""
     renders: int | None = None
-    """Videos rendered per training clip (with --train or --train-transformers; default: the recipe's, 8 for
+    """Videos rendered per training clip (with --train or --train-transformers; default: the recipe's, 16 for
     'small' as the shipped models, chosen on validation by `python -m experiments.dynamics_renders`; 2 for
     'large')."""
     seed: int = 0

@@ -1,9 +1,11 @@
-"""How many videos to render per training clip (``DataConfig.renders``), chosen on validation: the conditioning
-stage (the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks
-give the conditioning error and the root) trained on each candidate's renders with each seed, the same steps, and
-scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip).
+"""How many videos to render per training clip (``DataConfig.renders``) and how many steps to train the conditioning
+stage (``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head,
+the first stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the
+root) trained for each candidate (renders, steps) with each seed, and scored per clip on fresh validation renders of
+training clips (new cameras and shapes; never a test clip).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
 trainings are resumable in OUT/train (run the same command again after a kill). Logic:
@@ -16,7 +18,7 @@ import dataclasses
 from pathlib import Path
 
 import geometry
-from dynamics import VALIDATION_DATA
+from dynamics import VALIDATION_DATA, TrainConfig
 from experiments import _cli
 from experiments.dynamics import training_configs
 from experiments.dynamics_study import run_renders_study
@@ -27,7 +29,9 @@ class Config:
     out: Path
     """Output folder."""
     renders: tuple[int, ...] = (2, 4, 8)
-    """Candidate videos per training clip (the shipped models: 8, chosen by this study; 2 before 2026-11-28)."""
+    """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before)."""
+    steps: tuple[int, ...] | None = None
+    """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Training seeds per candidate."""
     validation_renders: int = 3
@@ -40,11 +44,14 @@ class Config:
     """Progress bars."""
 
     def __post_init__(self) -> None:
-        for option, values in (("--renders", self.renders), ("--seeds", self.seeds)):
-            if not values or len(set(values)) != len(values):
+        for option, values in (("--renders", self.renders), ("--steps", self.steps), ("--seeds", self.seeds)):
+            if values is not None and (not values or len(set(values)) != len(values)):
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
             raise ValueError("--renders, --validation-renders and --data-workers must be >= 1")
+        warmup = TrainConfig().image.warmup_steps
+        if self.steps and min(self.steps) <= warmup:
+            raise ValueError(f"--steps must exceed the stage's {warmup} warm-up steps, got {list(self.steps)}")
 
 
 def main(config: Config) -> None:
@@ -52,7 +59,8 @@ def main(config: Config) -> None:
     validation = dataclasses.replace(VALIDATION_DATA, renders=1 if config.quick else config.validation_renders)
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out:
-        results = run_renders_study(out, workdir, base, config.renders, config.seeds, validation,
+        steps = config.steps or (base.image.steps,)
+        results = run_renders_study(out, workdir, base, config.renders, steps, config.seeds, validation,
                                     geometry.stand_in_body_model(), log=_cli.jsonl_log(out), progress=config.progress,
                                     data_workers=config.data_workers)
         report = (out / "results.md").read_text()

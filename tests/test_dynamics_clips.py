@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -49,17 +50,29 @@ def test_a_data_config_takes_motion_files_and_pairs_of_them_and_refuses_the_rest
         mocap.load_clip_file(f"{walk}+{_expmap_file(tmp_path / 'short.txt', frames=20)}")
 
 
-def test_the_cache_key_tells_motion_files_and_rendering_versions_apart(tmp_path, monkeypatch):
+def test_the_cache_key_tells_motion_files_rendering_versions_and_xla_flags_apart(tmp_path, monkeypatch):
     path = _expmap_file(tmp_path / "walk.txt")
     config = DataConfig(clips=(str(path),))
     first = _cache_file(config, [mocap.load_clip_file(path)], tmp_path)
     _expmap_file(path, bend=0.5)  # another motion at the same path
     assert _cache_file(config, [mocap.load_clip_file(path)], tmp_path) != first
     shipped = DataConfig(clips=("02_01_walk",))
-    key = hashlib.sha1(("rendering 2 " + json.dumps(training.to_jsonable(shipped), sort_keys=True)).encode())
-    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name == f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    walk = [mocap.load_clip("02_01_walk")]
+    monkeypatch.setenv("XLA_FLAGS", "--b --a")
+    key = hashlib.sha1((f"rendering 2 jax {jax.__version__} XLA_FLAGS --a --b "
+                        + json.dumps(training.to_jsonable(shipped), sort_keys=True)).encode())
+    assert _cache_file(shipped, walk, tmp_path).name == f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    monkeypatch.setenv("XLA_FLAGS", "--a --b")  # the same flags in another order: the same renders
+    assert _cache_file(shipped, walk, tmp_path).name == f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    monkeypatch.setenv("XLA_FLAGS", "--a")  # another compilation (a notebook without the fusion flag): other rounding
+    assert _cache_file(shipped, walk, tmp_path).name != f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    monkeypatch.setenv("XLA_FLAGS", "--a --b")
+    monkeypatch.setattr(jax, "__version__", "0.0.1")  # another jax
+    assert _cache_file(shipped, walk, tmp_path).name != f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    monkeypatch.undo()
+    before = _cache_file(shipped, walk, tmp_path)
     monkeypatch.setattr(dynamics._data, "_RENDERING_VERSION", 3)  # rendering changed: the old renders are not reused
-    assert _cache_file(shipped, [mocap.load_clip("02_01_walk")], tmp_path).name != f"dynamics_frames_{key.hexdigest()[:16]}.npz"
+    assert _cache_file(shipped, walk, tmp_path) != before
 
 
 @pytest.mark.data
@@ -115,7 +128,7 @@ def test_the_large_recipe_is_consistent_and_renders_the_benchmark_train_split(da
     expmap = _cli.expmap_clips(data_root, "train")
     expected = dynamics.QUICK_CLIPS if quick else TRAIN_CLIPS + expmap
     assert phdt.data.clips == expected and len(expmap) == 72
-    assert small[0].data.renders == 8 and phdt.data.renders == (1 if quick else 2)
+    assert small[0].data.renders == 16 and phdt.data.renders == (1 if quick else 2)
 
 
 def test_renders_per_clip_reach_both_trainings_and_quick_renders_once():

@@ -3,7 +3,8 @@ videos, written as tables (Tables 5.2-5.11's layout), prediction plots (Fig. 5.1
 predicted meshes rendered into the video frames; ``python -m experiments.dynamics_forecast``, the 3D forecasters
 and two baselines on the CMU-Mocap benchmark's motion, per action and horizon; ``python -m
 experiments.dynamics_seeds``, the first's tables as mean and spread over training seeds; ``python -m
-experiments.dynamics_renders``, the renders per training clip chosen on validation."""
+experiments.dynamics_renders``, the renders per training clip and the conditioning stage's steps, chosen on
+validation."""
 
 from ._evaluation import run_experiment as run_experiment
 from ._evaluation import write_strip as write_strip
