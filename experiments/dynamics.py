@@ -51,11 +51,11 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
     videos per training clip instead of the recipe's.
 
     ``small`` is the defaults of :class:`~dynamics.TrainConfig` and :class:`~dynamics.TransformerTrainConfig` (16
-    renders per clip, 8000 conditioning steps). ``large`` takes 128 px crops and a ResNet twice as wide with two blocks per stage, renders
-    every training clip and every file of the CMU-Mocap benchmark's train split (``<data_root>/cmu_expmap/train``,
-    single-person motion of subjects the test clips' subjects are not known to be among) twice with four variants
-    each (its variety is the benchmark's motion; 16 renders of it would not fit in memory), and trains ten times as
-    many steps with larger batches."""
+    renders per clip, 8000 conditioning steps). ``large`` takes 128 px crops and a ResNet twice as wide with two
+    blocks per stage, renders every training clip and every file of the CMU-Mocap benchmark's train split
+    (``<data_root>/cmu_expmap/train``, single-person motion of subjects the test clips' subjects are not known to be
+    among) twice with four variants each (its variety is the benchmark's motion; 16 renders of it would not fit in
+    memory), and trains ten times as many steps with larger batches."""
     phdt, transformers = TrainConfig(seed=seed), TransformerTrainConfig(seed=seed)
     if recipe == "large":
         crop = 128
