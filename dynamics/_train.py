@@ -77,12 +77,17 @@ class StageConfig:
     discriminator_lr: float = 1e-4
     warmup_steps: int = 100
     end_lr_fraction: float = 0.05
+    clip_norm: float | None = None
+    """The trained parameters' gradients are scaled down to this global norm when larger, before Adam (None: never
+    clipped). The prior's are not. The logged ``grad_norm`` is the norm before clipping, so spikes stay visible."""
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1:
             raise ValueError(f"steps and batch_size must be >= 1, got {self.steps} and {self.batch_size}")
         if not 0 <= self.warmup_steps < self.steps:
             raise ValueError(f"warmup_steps must be in [0, steps={self.steps}), got {self.warmup_steps}")
+        if self.clip_norm is not None and not self.clip_norm > 0:
+            raise ValueError(f"clip_norm must be positive (or None), got {self.clip_norm}")
 
     def schedule(self, peak: float) -> optax.Schedule:
         return optax.warmup_cosine_decay_schedule(0.0, peak, self.warmup_steps, self.steps, peak * self.end_lr_fraction)
@@ -233,13 +238,14 @@ _ADAM = optax.scale_by_adam()
 """Adam less its step size, for the trained parts and for the prior: the step takes its rates as values."""
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4, 5))
 def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective: Callable, config: Any,
-                replicated: NamedSharding, rest: Any, body: geometry.BodyModel, state: TrainState, batch: Any,
-                key: jax.Array, learning_rate: ArrayLike, discriminator_lr: ArrayLike
+                replicated: NamedSharding, clip_norm: float | None, rest: Any, body: geometry.BodyModel,
+                state: TrainState, batch: Any, key: jax.Array, learning_rate: ArrayLike, discriminator_lr: ArrayLike
                 ) -> tuple[TrainState, dict[str, jax.Array]]:
-    """One Adam step of the trained parameters on ``objective`` and one of the prior on its LSGAN loss. A
-    module-level function of hashable static arguments, so the runs of one setting share one compilation."""
+    """One Adam step of the trained parameters on ``objective`` (their gradients clipped to ``clip_norm``,
+    :attr:`StageConfig.clip_norm`) and one of the prior on its LSGAN loss. A module-level function of hashable
+    static arguments, so the runs of one setting share one compilation."""
     prior = nnx.merge(prior_graphdef, state.prior)
 
     def loss(params):
@@ -247,7 +253,10 @@ def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective:
         return total, (terms, fake)
 
     (total, (terms, fake)), grads = jax.value_and_grad(loss, has_aux=True)(state.params)
-    direction, opt = _ADAM.update(grads, state.opt, state.params)
+    # Clipping is a stateless transform applied before Adam, so a stage's optimiser state (and its checkpoints) has
+    # one structure with or without it; unclipped, the step's program is the one it always was.
+    clipped = grads if clip_norm is None else optax.clip_by_global_norm(clip_norm).update(grads, optax.EmptyState())[0]
+    direction, opt = _ADAM.update(clipped, state.opt, state.params)
     targets = batch if hasattr(batch, "rotations") else batch[1]  # rows, or (features, rows)
     fake_rotations = jax.lax.stop_gradient(geometry.rotation_6d_to_matrix(fake.rot6d)).reshape(-1, 24, 3, 3)
     fake_betas = jax.lax.stop_gradient(fake.betas).reshape(-1, fake.betas.shape[-1])
@@ -284,8 +293,8 @@ def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model:
     def step(state: TrainState, i: int):
         sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
         batch = jax.device_put(sample(sample_key), batch_sharding)
-        return _train_step(graphdef, prior_graphdef, objective, config, replicated, rest, body, state, batch,
-                           dropout_key, learning_rate(i), discriminator_lr(i))
+        return _train_step(graphdef, prior_graphdef, objective, config, replicated, stage.clip_norm, rest, body,
+                           state, batch, dropout_key, learning_rate(i), discriminator_lr(i))
 
     state = training.run_training(
         workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,

@@ -62,6 +62,9 @@ class Config:
     """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
     train_lr: float | None = None
     """With --train: the peak learning rate (default: dynamics.ForecastTrainConfig's 5e-4; with --pairs 1e-4)."""
+    train_clip_norm: float | None = None
+    """With --train: clip the gradients to this global norm before Adam (dynamics.StageConfig.clip_norm; default:
+    dynamics.ForecastTrainConfig's)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""
@@ -102,8 +105,9 @@ class Config:
                              "forecasters; the pair forecasters are the JAT they start from")
         if self.pairs and not self.start_from.is_dir():
             raise ValueError(f"--start-from {self.start_from} is not a folder")
-        if self.train_lr is not None and not self.train_lr > 0:
-            raise ValueError(f"--train-lr must be positive, got {self.train_lr}")
+        for name in ("train_lr", "train_clip_norm"):
+            if getattr(self, name) is not None and not getattr(self, name) > 0:
+                raise ValueError(f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
         for name in ("train_steps", "train_batch", "train_width"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -142,8 +146,8 @@ class Config:
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
         stage = dataclasses.replace(config.stage, **{name: value for name, value in (
-            ("steps", self.train_steps), ("batch_size", self.train_batch), ("learning_rate", self.train_lr))
-            if value is not None})
+            ("steps", self.train_steps), ("batch_size", self.train_batch), ("learning_rate", self.train_lr),
+            ("clip_norm", self.train_clip_norm)) if value is not None})
         return dataclasses.replace(config, stage=stage)
 
     def model_changes(self) -> dict:

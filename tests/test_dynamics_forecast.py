@@ -270,8 +270,9 @@ def test_pose_frames_of_people_captured_together(data_root):
         dynamics.pose_frames(["02_01_walk"], BODY)
 
 
-def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
-    # Two short actions, copied under a folder of their own (a user's files, outside the benchmark's split).
+def _short_files(data_root, tmp_path) -> list[str]:
+    """Three short actions (the first two train, the last validates), copied under a folder of their own (a user's
+    files, outside the benchmark's split)."""
     files = []
     for action in ("walking", "jumping", "soccer"):
         source = data_root / "cmu_expmap" / "train" / action / f"{action}_1.txt"
@@ -279,6 +280,11 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
         target.parent.mkdir(exist_ok=True)
         target.write_text("\n".join(source.read_text().splitlines()[:400]) + "\n")
         files.append(str(target))
+    return files
+
+
+def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
+    files = _short_files(data_root, tmp_path)
     # Decoding from the extrapolated pose, the motion at two speeds and mirrored (the augmentations).
     model = dynamics.ForecasterConfig(phdt=dataclasses.replace(TINY_PHDT, decode_from="extrapolated", tcn_blocks=1))
     config = dynamics.ForecastTrainConfig(
@@ -297,6 +303,29 @@ def test_training_resumes_after_a_kill_bit_identically(data_root, tmp_path):
     assert_same_parameters(loaded["PHD+T"], full)
     with pytest.raises(FileNotFoundError, match="holds none of the forecasters"):
         dynamics.load_forecasters(tmp_path / "full")
+
+
+def test_clipping_scales_the_gradient_down_before_adam(data_root, tmp_path):
+    """Adam's first step moves a parameter by about the learning rate whatever its gradient's scale, unless the
+    gradient is below Adam's epsilon (1e-8): clipped to a norm of 1e-12 the step moves no parameter by more than 1e-4
+    times the learning rate, unclipped it moves some by the learning rate. Both runs log the norm before clipping."""
+    files = _short_files(data_root, tmp_path)
+    model = dynamics.ForecasterConfig(phdt=dataclasses.replace(TINY_PHDT, tcn_blocks=1))
+    stage = dynamics.StageConfig(steps=1, batch_size=2, learning_rate=1e-3, warmup_steps=0)
+    start = nnx.state(dynamics.initial_forecaster(model, 0), nnx.Param)
+    moved, logged = {}, {}
+    for clip_norm in (None, 1e-12):
+        config = dynamics.ForecastTrainConfig(
+            tuple(files[:2]), tuple(files[2:]), model=model, speeds=(1.0,), mirror=False, observed=6, horizon=3,
+            stage=dataclasses.replace(stage, clip_norm=clip_norm), log_interval=1, cache_dir=str(tmp_path / "cache"))
+        records = []
+        trained = dynamics.train_forecaster(config, tmp_path / f"clip_{clip_norm}", BODY, resume=False,
+                                            log=records.append, progress=False)
+        moved[clip_norm] = max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(
+            jax.tree.leaves(nnx.state(trained, nnx.Param)), jax.tree.leaves(start)))
+        logged[clip_norm] = records[0]["grad_norm"]
+    assert moved[None] > 0.5 * stage.learning_rate and moved[1e-12] < 1e-3 * stage.learning_rate
+    assert logged[None] == logged[1e-12] > 1e-3
 
 
 def _frames(video, person, frame) -> dynamics.PoseFrames:
@@ -436,6 +465,9 @@ def test_command_line_training_options(data_root, tmp_path):
     assert train.stage.learning_rate == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.learning_rate
     assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_lr=1e-4).train_config(
         ("a.txt",), ("b.txt",)).stage.learning_rate == 1e-4
+    assert train.stage.clip_norm == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.clip_norm
+    assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_clip_norm=10.0).train_config(
+        ("a.txt",), ("b.txt",)).stage.clip_norm == 10.0
     with unittest.mock.patch.object(dynamics_forecast, "train_forecasters", side_effect=KeyboardInterrupt) as train:
         with pytest.raises(KeyboardInterrupt):
             dynamics_forecast.main(dynamics_forecast.Config(out=tmp_path / "wide", data_root=data_root, train=True,
@@ -445,6 +477,7 @@ def test_command_line_training_options(data_root, tmp_path):
     for options, message in (({"train_steps": 0}, "--train-steps must be >= 1"),
                              ({"train_width": 0}, "--train-width must be >= 1"),
                              ({"train_lr": 0.0}, "--train-lr must be positive"),
+                             ({"train_clip_norm": -1.0}, "--train-clip-norm must be positive"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
                              ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
