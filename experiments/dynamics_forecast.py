@@ -63,8 +63,8 @@ class Config:
     train_lr: float | None = None
     """With --train: the peak learning rate (default: dynamics.ForecastTrainConfig's 5e-4; with --pairs 1e-4)."""
     train_clip_norm: float | None = None
-    """With --train: clip the gradients to this global norm before Adam (dynamics.StageConfig.clip_norm; default:
-    dynamics.ForecastTrainConfig's)."""
+    """With --train: clip the gradients to this global norm before Adam, 0: not at all (dynamics.StageConfig.clip_norm;
+    default: dynamics.ForecastTrainConfig's 500, with --pairs none)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""
@@ -105,9 +105,10 @@ class Config:
                              "forecasters; the pair forecasters are the JAT they start from")
         if self.pairs and not self.start_from.is_dir():
             raise ValueError(f"--start-from {self.start_from} is not a folder")
-        for name in ("train_lr", "train_clip_norm"):
-            if getattr(self, name) is not None and not getattr(self, name) > 0:
-                raise ValueError(f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if self.train_lr is not None and not self.train_lr > 0:
+            raise ValueError(f"--train-lr must be positive, got {self.train_lr}")
+        if self.train_clip_norm is not None and not self.train_clip_norm >= 0:
+            raise ValueError(f"--train-clip-norm must be >= 0 (0: no clipping), got {self.train_clip_norm}")
         for name in ("train_steps", "train_batch", "train_width"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -145,10 +146,12 @@ class Config:
             config = dataclasses.replace(config, start_from=str(self.start_from.resolve()))
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
-        stage = dataclasses.replace(config.stage, **{name: value for name, value in (
+        changes = {name: value for name, value in (
             ("steps", self.train_steps), ("batch_size", self.train_batch), ("learning_rate", self.train_lr),
-            ("clip_norm", self.train_clip_norm)) if value is not None})
-        return dataclasses.replace(config, stage=stage)
+            ("clip_norm", self.train_clip_norm)) if value is not None}
+        if changes.get("clip_norm") == 0:  # the option's 0, StageConfig's None
+            changes["clip_norm"] = None
+        return dataclasses.replace(config, stage=dataclasses.replace(config.stage, **changes))
 
     def model_changes(self) -> dict:
         """What --train changes in every forecaster's model config."""

@@ -465,9 +465,10 @@ def test_command_line_training_options(data_root, tmp_path):
     assert train.stage.learning_rate == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.learning_rate
     assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_lr=1e-4).train_config(
         ("a.txt",), ("b.txt",)).stage.learning_rate == 1e-4
-    assert train.stage.clip_norm == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.clip_norm
-    assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_clip_norm=10.0).train_config(
-        ("a.txt",), ("b.txt",)).stage.clip_norm == 10.0
+    assert train.stage.clip_norm == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.clip_norm == 500.0
+    for option, clip_norm in ((10.0, 10.0), (0.0, None)):  # 0: unclipped
+        assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_clip_norm=option).train_config(
+            ("a.txt",), ("b.txt",)).stage.clip_norm == clip_norm
     with unittest.mock.patch.object(dynamics_forecast, "train_forecasters", side_effect=KeyboardInterrupt) as train:
         with pytest.raises(KeyboardInterrupt):
             dynamics_forecast.main(dynamics_forecast.Config(out=tmp_path / "wide", data_root=data_root, train=True,
@@ -477,7 +478,7 @@ def test_command_line_training_options(data_root, tmp_path):
     for options, message in (({"train_steps": 0}, "--train-steps must be >= 1"),
                              ({"train_width": 0}, "--train-width must be >= 1"),
                              ({"train_lr": 0.0}, "--train-lr must be positive"),
-                             ({"train_clip_norm": -1.0}, "--train-clip-norm must be positive"),
+                             ({"train_clip_norm": -1.0}, "--train-clip-norm must be >= 0"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
                              ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
@@ -487,6 +488,7 @@ def test_command_line_training_options(data_root, tmp_path):
     assert pairs.names == tuple(dynamics.PAIR_FORECASTERS) and pairs.models == dynamics.SHIPPED_FORECASTERS / "pairs"
     train = pairs.train_config(("a+b",), ())
     assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
+    assert train.stage.clip_norm is None  # the pair forecasters' fine-tuning is unclipped
     with pytest.raises(ValueError, match="--train-names must name forecasters of"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
     for change in ({"train_extrapolation": 0.3}, {"train_width": 2}):
