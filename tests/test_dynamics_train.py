@@ -242,4 +242,4 @@ def test_config_errors(cache_dir):
     with pytest.raises(ValueError, match="warmup_steps must be in"):
         dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=4)
     with pytest.raises(ValueError, match="clip_norm must be positive"):
-        dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, clip_norm=0.0)
+        dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1, clip_norm=0.0)
