@@ -15,9 +15,10 @@ the project's loop (:func:`training.run_training`) in its own folder of the work
    networks' estimates of the future frames, and the shape consistency.
 
 Each stage also trains the adversarial prior (:class:`~dynamics.PosePrior`, LSGAN) against the batch's ground
-truth poses (our "mocap" data) and the stage's predictions. Adam with a linear warm-up and a cosine decay; the
-thesis' rates (Tables C.2-C.3: 2e-5 and below) are for fine-tuning pretrained networks over many GPU epochs,
-ours start from scratch in minutes on a CPU, so they are larger (:class:`StageConfig`). Step i draws its
+truth poses (our "mocap" data) and the stage's predictions. Adam with a linear warm-up and a cosine decay, the
+gradients optionally clipped first (:attr:`StageConfig.clip_norm`); the thesis' rates (Tables C.2-C.3: 2e-5 and
+below) are for fine-tuning pretrained networks over many GPU epochs, ours start from scratch in minutes on a CPU,
+so they are larger (:class:`StageConfig`). Step i draws its
 batch and dropout from ``fold_in(key(seed), i)``: a resumed stage repeats an uninterrupted one exactly, and a
 finished stage is skipped when the run is resumed. Data parallel over the local devices (batches sharded,
 parameters replicated) as :func:`training.data_parallel_shardings` says.
