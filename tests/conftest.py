@@ -14,13 +14,19 @@ from pathlib import Path
 
 from _compile_flags import with_fast_compilation
 
-# One persistent compilation cache for the whole run, set in the environment before jax starts so that the
-# subprocesses (two-device runs) and notebook kernels share it: each module's compiled programs are dropped
+# One persistent compilation cache per test process, set in the environment before jax starts so that the
+# process's subprocesses (two-device runs) and notebook kernels share it: each module's compiled programs are dropped
 # after it (below), and later modules and runs that build the same programs load them instead of compiling
 # them again. A fresh folder per run unless JAX_COMPILATION_CACHE_DIR is set, so a run's time is a cold start.
+# Each pytest-xdist worker gets its own subfolder because jax writes an entry in place, without a lock: two
+# workers collecting the same module compile the same program at once, and one read the other's half-written
+# entry (a CI failure, "incomplete or truncated stream").
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     _COMPILED = tempfile.mkdtemp(prefix="mvmocap-compiled-")
     os.environ["JAX_COMPILATION_CACHE_DIR"] = _COMPILED
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = os.path.join(
+        os.environ["JAX_COMPILATION_CACHE_DIR"], os.environ["PYTEST_XDIST_WORKER"])
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # Compile for a short suite (tests/_compile_flags.py says why and what keeps the defaults); inherited like the above.

@@ -1,10 +1,12 @@
-"""tests/conftest.py: under CI a missing data folder fails the whole run; elsewhere its tests are skipped."""
+"""tests/conftest.py: under CI a missing data folder fails the whole run; elsewhere its tests are skipped; each
+test process compiles into its own persistent cache."""
 
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,3 +35,9 @@ def test_ci_without_data_fails_at_session_start_with_one_line(tmp_path):
 def test_without_ci_a_missing_data_folder_only_skips_its_tests(tmp_path):
     run = _collect_with(None, tmp_path / "absent")
     assert run.returncode == pytest.ExitCode.OK, run.stdout + run.stderr
+
+
+@pytest.mark.skipif("PYTEST_XDIST_WORKER" not in os.environ, reason="one test process: there is no cache to share")
+def test_each_test_process_has_its_own_compilation_cache():
+    # jax writes cache entries in place without a lock, so two processes sharing a folder can read half an entry.
+    assert Path(jax.config.jax_compilation_cache_dir).name == os.environ["PYTEST_XDIST_WORKER"]
