@@ -41,6 +41,36 @@ def _run(workdir, config=_Config(), steps=5, resume=False, log=lambda record: No
         replicated=replicated, learning_rate=lambda i: 0.1 * i, log=log, progress=False)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Stage:
+    rate: float = 0.5
+    clip: float | None = None  # "added after the run started": None keeps the old program
+
+
+@dataclasses.dataclass(frozen=True)
+class _Nested:
+    stage: _Stage = _Stage(clip=2.0)
+    name: str = "a"
+
+
+def test_resume_takes_a_field_added_since_at_its_default_and_names_what_differs(tmp_path):
+    with pytest.raises(Killed):
+        _run(tmp_path, config=_Nested(stage=_Stage()), log=kill_at(3))
+    stored = json.loads((tmp_path / "config.json").read_text())
+    del stored["stage"]["clip"]  # as a run written before the field existed stores it
+    (tmp_path / "config.json").write_text(json.dumps(stored))
+    for config, names in ((_Nested(), "stage.clip"), (_Nested(stage=_Stage(rate=0.1, clip=None), name="b"),
+                                                      "stage.rate, name")):
+        with pytest.raises(ValueError, match=rf"config\.json differs from the config passed in {names}: resume only"):
+            _run(tmp_path, config=config, resume=True)
+    (tmp_path / "config.json").write_text(json.dumps({**stored, "removed": 1}))
+    with pytest.raises(ValueError, match="differs from the config passed in removed:"):
+        _run(tmp_path, config=_Nested(stage=_Stage()), resume=True)
+    (tmp_path / "config.json").write_text(json.dumps(stored))
+    assert int(_run(tmp_path, config=_Nested(stage=_Stage()), resume=True).step) == 5
+    assert json.loads((tmp_path / "config.json").read_text())["stage"]["clip"] is None  # rewritten in full
+
+
 def test_loop_resumes_bit_identically_and_refuses_misuse(tmp_path):
     full = _run(tmp_path / "full")
     with pytest.raises(Killed):

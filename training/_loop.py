@@ -43,6 +43,33 @@ def data_parallel_shardings(batch_size: int) -> tuple[NamedSharding, NamedShardi
     return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("data"))
 
 
+def _config_differences(stored: dict, config: Any, prefix: str = "") -> list[str]:
+    """The dotted names of the fields where ``config`` (a dataclass) and a run's stored ``config.json`` differ.
+
+    A field the stored config lacks was added to the code after the run started: it counts as equal when
+    ``config`` holds the field's default, because a new field's default keeps the program the run was trained by
+    (``StageConfig.clip_norm=None``: no clipping)."""
+    ours = to_jsonable(dataclasses.asdict(config))
+    differences = [prefix + name for name in sorted(set(stored) - set(ours))]  # fields the code no longer has
+    for field in dataclasses.fields(config):
+        name, value = field.name, getattr(config, field.name)
+        if name not in stored:
+            if field.default is not dataclasses.MISSING:
+                default = field.default
+            elif field.default_factory is not dataclasses.MISSING:
+                default = field.default_factory()
+            else:
+                differences.append(prefix + name)
+                continue
+            if to_jsonable(value) != to_jsonable(default):
+                differences.append(prefix + name)
+        elif dataclasses.is_dataclass(value) and isinstance(stored[name], dict):
+            differences += _config_differences(stored[name], value, f"{prefix}{name}.")
+        elif stored[name] != ours[name]:
+            differences.append(prefix + name)
+    return differences
+
+
 def _truncate_log(path: Path, last_step: int) -> None:
     """Drop log lines past the restored step (or all of a run killed before its first checkpoint):
     the run writes them again, identically. A run killed while writing a line leaves it torn (the last line,
@@ -116,7 +143,8 @@ def run_training(
     logged step (``step``, the metrics every ``log_interval`` steps with the ``learning_rate(i)`` as ``lr``
     and ``seconds_per_step``, ``validate(state)`` every ``validation_interval`` steps, both at the last);
     ``checkpoints/<step>/`` (orbax, atomic, the last two kept) every ``checkpoint_interval`` steps and at the
-    end. ``resume=True`` continues from the latest checkpoint that restores (refusing a different config; a corrupt one
+    end. ``resume=True`` continues from the latest checkpoint that restores (refusing a different config, by the
+    fields that differ; a field the stored config lacks, added to the code since, must hold its default; a corrupt one
     is skipped with a warning for the one before it, a torn last log line dropped with a warning); ``resume=False``
     refuses a ``workdir`` that already has checkpoints. ``log`` receives every record written; ``progress``
     shows a tqdm bar. The state is kept on ``replicated`` devices.
@@ -129,8 +157,11 @@ def run_training(
     workdir.mkdir(parents=True, exist_ok=True)
     config_json = json.dumps(to_jsonable(dataclasses.asdict(config)), indent=2, sort_keys=True) + "\n"
     config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
-    if resume and config_path.is_file() and config_path.read_text() != config_json:
-        raise ValueError(f"{config_path} differs from the config passed: resume only the same run")
+    if resume and config_path.is_file():
+        differences = _config_differences(json.loads(config_path.read_text()), config)
+        if differences:
+            raise ValueError(f"{config_path} differs from the config passed in {', '.join(differences[:4])}: "
+                             "resume only the same run")
 
     options = ocp.CheckpointManagerOptions(max_to_keep=2)
     with ocp.CheckpointManager(workdir / "checkpoints", options=options) as manager:
