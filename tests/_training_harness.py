@@ -58,6 +58,10 @@ def run_on_two_devices(body: str, config, tmp_path: Path) -> Path:
     # Added to the flags conftest set (the fusion switch), which the child must run with as this process does.
     flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2".strip()
     env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+    if "JAX_COMPILATION_CACHE_DIR" in env:
+        # A cache of its own: it may run beside this process (tests/test_dynamics_train.py), whose one-device
+        # programs have the same cache keys, and jax writes an entry in place without a lock (tests/conftest.py).
+        env["JAX_COMPILATION_CACHE_DIR"] = os.path.join(env["JAX_COMPILATION_CACHE_DIR"], "two_devices")
     subprocess.run([sys.executable, "-c", _TWO_DEVICE_PROLOGUE + textwrap.dedent(body), str(tmp_path / "config.pkl"),
                     str(out), str(TESTS)], check=True, env=env, cwd=TESTS.parent, timeout=300)
     return out
