@@ -279,10 +279,12 @@ def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective:
 def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model: nnx.Module,
                trainable: Any, objective: Callable, sample: Callable[[jax.Array], Any],
                validate: Callable[[nnx.Module], dict[str, float]], body: geometry.BodyModel, *, resume: bool,
-               log: Callable[[dict], None], progress: bool) -> nnx.Module:
+               log: Callable[[dict], None], progress: bool, later: tuple[str, ...] = ()) -> nnx.Module:
     """Train the ``trainable`` part of ``model`` on ``objective`` (module docstring) and return the model.
     ``config``: the run's frozen config (:class:`TrainConfig`, or the transformers' or forecasters' own), whose
-    ``model.num_shapes``, ``seed`` and intervals this reads and which ``objective`` receives."""
+    ``model.num_shapes``, ``seed`` and intervals this reads and which ``objective`` receives; ``later``: its fields
+    of the stages after this one, which the stage's ``config.json`` leaves out, so that a run changed in a later
+    stage resumes with the stages before it restored."""
     replicated, batch_sharding = training.data_parallel_shardings(stage.batch_size)
     graphdef, params, rest = nnx.split(model, trainable, ...)
     prior_graphdef, prior_params = nnx.split(PosePrior(config.model.num_shapes, rngs=nnx.Rngs(config.seed + 1)))
@@ -301,7 +303,8 @@ def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model:
         workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
         validate=lambda state: validate(nnx.merge(graphdef, state.params, rest)), replicated=replicated,
-        learning_rate=learning_rate, log=log, progress=progress, description=f"dynamics {name}")
+        learning_rate=learning_rate, independent_of=later, log=log, progress=progress,
+        description=f"dynamics {name}")
     return nnx.merge(graphdef, state.params, rest)
 
 
@@ -391,7 +394,7 @@ def _train_image(config: TrainConfig, workdir: Path, body: geometry.BodyModel, f
         return {f"val_{name}": value for name, value in metrics.items()}
 
     return _run_stage("image", config, config.image, workdir, image_model, nnx.Param, _image_objective, sample_rows,
-                      validate_image, body, resume=resume, log=log, progress=progress)
+                      validate_image, body, resume=resume, log=log, progress=progress, later=("movie", "ar"))
 
 
 def train_conditioning(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *, resume: bool,
@@ -411,8 +414,9 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
           data_workers: int = 1) -> tuple[ResNetBackbone, PHDT]:
     """Run the three stages of the module docstring in ``workdir`` and return the trained backbone and PHD+T.
 
-    ``resume=True`` continues a killed run (finished stages are restored, not retrained); ``data_workers`` CPU
-    processes render the videos (the same frames as one)."""
+    ``resume=True`` continues a killed run (finished stages are restored, not retrained); a stage does not record
+    the stages after it, so a run whose later stage changed (delete that stage's folder) restores the stages before
+    it. ``data_workers`` CPU processes render the videos (the same frames as one)."""
     workdir = Path(workdir).resolve()
     cache_dir, frames, validation = _training_frames(config, workdir, body, progress, data_workers)
     rngs = nnx.Rngs(config.seed)
@@ -447,7 +451,7 @@ def train(config: TrainConfig, workdir: str | Path, body: geometry.BodyModel, *,
     movie_parts = nnx.All(nnx.Param, nnx.Any(nnx.PathContains("movie"), nnx.PathContains("hmr"),
                                               nnx.PathContains("deltas")))
     phdt = _run_stage("movie", config, config.movie, workdir, phdt, movie_parts, _movie_objective, sample_windows,
-                      validate_movie, body, resume=resume, log=log, progress=progress)
+                      validate_movie, body, resume=resume, log=log, progress=progress, later=("ar",))
 
     @nnx.jit
     def ar_metrics(model, features, rows):

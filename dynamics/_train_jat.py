@@ -197,7 +197,8 @@ def train_transformer(config: TransformerTrainConfig, workdir: str | Path, body:
                                          for objective in (_scene_movie_objective, _ar_objective))
     if config.movie is not None:
         model = _run_stage("movie", config, config.movie, workdir, model, _CONDITIONING, movie_objective,
-                           sampler(config.movie), validate, body, resume=resume, log=log, progress=progress)
+                           sampler(config.movie), validate, body, resume=resume, log=log, progress=progress,
+                           later=("ar",))
     model = _run_stage("ar", config, config.ar, workdir, model, _AR_PARTS, ar_objective, sampler(config.ar),
                        validate, body, resume=resume, log=log, progress=progress)
     training.save_model(workdir / "model", config.model, nnx.state(model))

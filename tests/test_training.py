@@ -71,6 +71,24 @@ def test_resume_takes_a_field_added_since_at_its_default_and_names_what_differs(
     assert json.loads((tmp_path / "config.json").read_text())["stage"]["clip"] is None  # rewritten in full
 
 
+def test_fields_a_run_is_independent_of_are_not_recorded_and_may_change(tmp_path):
+    def run(config, **options):
+        replicated, _ = training.data_parallel_shardings(1)
+        return training.run_training(
+            tmp_path, config, _State(jnp.ones(3), jnp.asarray(0, jnp.int32)), _step, steps=4, log_interval=1,
+            checkpoint_interval=2, validation_interval=4, validate=lambda state: {}, replicated=replicated,
+            independent_of=("name",), progress=False, **options)
+
+    with pytest.raises(Killed):
+        run(_Nested(), resume=False, log=kill_at(3))
+    assert "name" not in json.loads((tmp_path / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps({**json.loads((tmp_path / "config.json").read_text()),
+                                                      "name": "as an older run recorded it"}))
+    with pytest.raises(ValueError, match="differs from the config passed in stage.rate:"):
+        run(_Nested(stage=_Stage(rate=0.1, clip=2.0), name="b"), resume=True)
+    assert int(run(_Nested(name="b"), resume=True).step) == 4
+
+
 def test_loop_resumes_bit_identically_and_refuses_misuse(tmp_path):
     full = _run(tmp_path / "full")
     with pytest.raises(Killed):

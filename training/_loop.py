@@ -43,16 +43,27 @@ def data_parallel_shardings(batch_size: int) -> tuple[NamedSharding, NamedShardi
     return NamedSharding(mesh, PartitionSpec()), NamedSharding(mesh, PartitionSpec("data"))
 
 
-def _config_differences(stored: dict, config: Any, prefix: str = "") -> list[str]:
-    """The dotted names of the fields where ``config`` (a dataclass) and a run's stored ``config.json`` differ.
+def _recorded(config: Any, independent_of: tuple[str, ...]) -> dict:
+    """``config`` as its run's ``config.json`` holds it: JSON values, without the fields the run does not read."""
+    return {name: value for name, value in to_jsonable(dataclasses.asdict(config)).items()
+            if name not in independent_of}
+
+
+def _config_differences(stored: dict, config: Any, independent_of: tuple[str, ...] = (), prefix: str = ""
+                        ) -> list[str]:
+    """The dotted names of the fields where ``config`` (a dataclass) and a run's stored ``config.json`` differ,
+    leaving out the top-level fields named in ``independent_of``.
 
     A field the stored config lacks was added to the code after the run started: it counts as equal when
     ``config`` holds the field's default, because a new field's default keeps the program the run was trained by
     (``StageConfig.clip_norm=None``: no clipping)."""
-    ours = to_jsonable(dataclasses.asdict(config))
+    ours = _recorded(config, independent_of)
+    stored = {name: value for name, value in stored.items() if name not in independent_of}
     differences = [prefix + name for name in sorted(set(stored) - set(ours))]  # fields the code no longer has
     for field in dataclasses.fields(config):
         name, value = field.name, getattr(config, field.name)
+        if name in independent_of:
+            continue
         if name not in stored:
             if field.default is not dataclasses.MISSING:
                 default = field.default
@@ -64,7 +75,7 @@ def _config_differences(stored: dict, config: Any, prefix: str = "") -> list[str
             if to_jsonable(value) != to_jsonable(default):
                 differences.append(prefix + name)
         elif dataclasses.is_dataclass(value) and isinstance(stored[name], dict):
-            differences += _config_differences(stored[name], value, f"{prefix}{name}.")
+            differences += _config_differences(stored[name], value, prefix=f"{prefix}{name}.")
         elif stored[name] != ours[name]:
             differences.append(prefix + name)
     return differences
@@ -127,6 +138,7 @@ def run_training(
     validate: Callable[[S], Mapping[str, float]],
     replicated: NamedSharding,
     learning_rate: Callable[[int], Any] | None = None,
+    independent_of: tuple[str, ...] = (),
     log: Callable[[dict], None] = lambda record: None,
     progress: bool = True,
     description: str = "train",
@@ -138,7 +150,9 @@ def run_training(
     step i's randomness from ``fold_in(key, i)``), so that a resumed run repeats an uninterrupted one bit for
     bit. It returns the new state and the step's metrics.
 
-    Files in ``workdir``: ``config.json`` (``config``, a dataclass); ``run.json`` (:func:`provenance` of the
+    Files in ``workdir``: ``config.json`` (``config``, a dataclass, less its top-level fields named in
+    ``independent_of``: those the run does not read, such as a later training stage's, so that changing them
+    does not make it another run); ``run.json`` (:func:`provenance` of the
     latest invocation, resumed or not, and its start time); ``log.jsonl``, one JSON object per
     logged step (``step``, the metrics every ``log_interval`` steps with the ``learning_rate(i)`` as ``lr``
     and ``seconds_per_step``, ``validate(state)`` every ``validation_interval`` steps, both at the last);
@@ -155,10 +169,10 @@ def run_training(
             raise ValueError(f"{name} must be >= 1, got {value}")
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
-    config_json = json.dumps(to_jsonable(dataclasses.asdict(config)), indent=2, sort_keys=True) + "\n"
+    config_json = json.dumps(_recorded(config, independent_of), indent=2, sort_keys=True) + "\n"
     config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
     if resume and config_path.is_file():
-        differences = _config_differences(json.loads(config_path.read_text()), config)
+        differences = _config_differences(json.loads(config_path.read_text()), config, independent_of)
         if differences:
             raise ValueError(f"{config_path} differs from the config passed in {', '.join(differences[:4])}: "
                              "resume only the same run")
