@@ -87,6 +87,11 @@ def test_fields_a_run_is_independent_of_are_not_recorded_and_may_change(tmp_path
     with pytest.raises(ValueError, match="differs from the config passed in stage.rate:"):
         run(_Nested(stage=_Stage(rate=0.1, clip=2.0), name="b"), resume=True)
     assert int(run(_Nested(name="b"), resume=True).step) == 4
+    with pytest.raises(ValueError, match=r"independent_of names \['nmae'\], which _Config has no fields for"):
+        training.run_training(tmp_path / "x", _Config(), _State(jnp.ones(3), jnp.asarray(0, jnp.int32)), _step,
+                              steps=1, resume=False, log_interval=1, checkpoint_interval=1, validation_interval=1,
+                              validate=dict, replicated=training.data_parallel_shardings(1)[0],
+                              independent_of=("nmae",))
 
 
 def test_loop_resumes_bit_identically_and_refuses_misuse(tmp_path):

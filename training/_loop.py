@@ -167,6 +167,9 @@ def run_training(
                         ("validation_interval", validation_interval)):
         if value < 1:
             raise ValueError(f"{name} must be >= 1, got {value}")
+    unknown = sorted(set(independent_of) - {field.name for field in dataclasses.fields(config)})
+    if unknown:
+        raise ValueError(f"independent_of names {unknown}, which {type(config).__name__} has no fields for")
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
     config_json = json.dumps(_recorded(config, independent_of), indent=2, sort_keys=True) + "\n"
