@@ -44,11 +44,12 @@ RECIPES = ("small", "large")
 backbone, more rendered motion)."""
 
 
-def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path | None, renders: int | None = None
-                     ) -> tuple[TrainConfig, TransformerTrainConfig]:
+def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path | None, renders: int | None = None,
+                     ar_clip_norm: float | None = None) -> tuple[TrainConfig, TransformerTrainConfig]:
     """The backbone and PHD+T run, and the transformers' (JAT's, as :func:`dynamics.train_all` takes it), of
     ``recipe``; ``quick``: a few steps per stage on two clips of its data, rendered once (a smoke run); ``renders``:
-    videos per training clip instead of the recipe's.
+    videos per training clip instead of the recipe's; ``ar_clip_norm``: the autoregressive stages' gradients
+    (PHD+T's and the transformers') clipped to that global norm (the recipes do not clip).
 
     ``small`` is the defaults of :class:`~dynamics.TrainConfig` and :class:`~dynamics.TransformerTrainConfig` (16
     renders per clip, 8000 conditioning steps). ``large`` takes 128 px crops and a ResNet twice as wide with two
@@ -81,6 +82,9 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
         data = dataclasses.replace(phdt.data, clips=QUICK_CLIPS, renders=1, augmented_epochs=2)
         phdt = dataclasses.replace(phdt, data=data, **QUICK_TRAIN)
         transformers = dataclasses.replace(transformers, data=data, **QUICK_TRANSFORMERS)
+    if ar_clip_norm is not None:
+        phdt, transformers = (dataclasses.replace(config, ar=dataclasses.replace(config.ar, clip_norm=ar_clip_norm))
+                              for config in (phdt, transformers))
     return phdt, transformers
 
 
@@ -120,6 +124,11 @@ class Config:
     'large')."""
     seed: int = 0
     """Training seed (with --train or --train-transformers)."""
+    train_ar_clip_norm: float | None = None
+    """Clip the gradients of the autoregressive stages (PHD+T's, each transformer's) to this global norm (with
+    --train or --train-transformers; default: unclipped, as the shipped models; untested for the video models). The
+    stages before them do not record it: to retrain only those stages, delete OUT/train/ar and
+    OUT/train/transformers/*/ar of a finished run and run it again."""
     data_workers: int = 1
     """CPU processes that render the training videos (the same frames as one)."""
     progress: bool = True
@@ -141,13 +150,16 @@ class Config:
             raise ValueError(f"--data-workers must be >= 1, got {self.data_workers}")
         if self.renders is not None and self.renders < 1:
             raise ValueError(f"--renders must be >= 1, got {self.renders}")
+        if self.train_ar_clip_norm is not None and not self.train_ar_clip_norm > 0:
+            raise ValueError(f"--train-ar-clip-norm must be positive, got {self.train_ar_clip_norm}")
         self.evaluation()  # refuses a clip that is neither shipped nor files before any work
         if self.train or self.train_transformers:
             self.training()  # refuses the large recipe without the benchmark's files before any work
 
     def training(self) -> tuple[TrainConfig, TransformerTrainConfig]:
         """The training runs of --recipe (:func:`training_configs`)."""
-        return training_configs(self.recipe, self.seed, self.quick, self.data_root, self.renders)
+        return training_configs(self.recipe, self.seed, self.quick, self.data_root, self.renders,
+                                self.train_ar_clip_norm)
 
     def evaluation(self) -> EvalConfig:
         """The held-out evaluation on --clips (each file as a path that exists, relative ones found under the data

@@ -1,6 +1,7 @@
 """The dynamics evaluation on any clip: motion files and salsa pairs as clips (dynamics/_data.py, mocap.clip_files),
 ``python -m experiments.dynamics --clips`` and the strip's titles (experiments/dynamics_study/_evaluation.py)."""
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -100,6 +101,7 @@ def test_the_command_refuses_a_missing_clip_file_on_one_line(tmp_path):
     (["--recipe", "huge"], "--recipe must be one of ('small', 'large'), got 'huge'"),
     (["--data-workers", "0"], "--data-workers must be >= 1, got 0"),
     (["--train", "--renders", "0"], "--renders must be >= 1, got 0"),
+    (["--train", "--train-ar-clip-norm", "0"], "--train-ar-clip-norm must be positive, got 0.0"),
     (["--train", "--recipe", "large"], "no data folder: pass data_root (--data-root on the command line)"),
 ])
 def test_the_options_refuse_bad_values_before_any_work(options, message, capsys, monkeypatch):
@@ -137,6 +139,16 @@ def test_renders_per_clip_reach_both_trainings_and_quick_renders_once():
     phdt, transformers = dynamics.training_configs("small", 0, False, None, renders=4)
     assert phdt.data.renders == transformers.data.renders == 4 and phdt.data == transformers.data
     assert dynamics.training_configs("small", 0, True, None, renders=4)[0].data.renders == 1
+
+
+def test_the_ar_clip_norm_reaches_the_autoregressive_stages_of_both_trainings_only():
+    from experiments import _cli, dynamics
+
+    config = _cli.parse(dynamics.Config, ["--out", "x", "--train", "--train-ar-clip-norm", "800"], prog="dynamics")
+    phdt, transformers = config.training()
+    small = dynamics.training_configs("small", 0, False, None)
+    assert phdt.ar.clip_norm == transformers.ar.clip_norm == 800.0 and small[0].ar.clip_norm is None
+    assert (dataclasses.replace(phdt, ar=small[0].ar), dataclasses.replace(transformers, ar=small[1].ar)) == small
 
 
 def test_the_strip_titles_its_rows_and_columns():
