@@ -28,7 +28,8 @@ S = TypeVar("S")
 
 def to_jsonable(value: Any) -> Any:
     """Dataclasses (nested) as dicts, tuples as lists, anything else JSON cannot hold as its ``str``."""
-    return json.loads(json.dumps(value, default=lambda v: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else str(v)))
+    return json.loads(json.dumps(
+        value, default=lambda v: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else str(v)))
 
 
 def data_parallel_shardings(batch_size: int) -> tuple[NamedSharding, NamedSharding]:
