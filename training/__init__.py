@@ -1,8 +1,9 @@
 """Training infrastructure shared by every model of the project (JCSAT, FLEX, the dynamics models).
 
 - :func:`run_training`: the resumable loop: orbax checkpoints written atomically every interval (a killed
-  run loses at most one interval), ``--resume`` that continues bit-identically, JSON-lines logs, a tqdm bar,
-  validation at fixed steps. The model-specific step and validation are functions passed in.
+  run loses at most one interval), ``--resume`` that continues bit-identically (refusing another config by the
+  fields that differ), JSON-lines logs, a tqdm bar, validation at fixed steps. The model-specific step and
+  validation are functions passed in.
 - :func:`data_parallel_shardings`: the one-axis ``"data"`` mesh over the local devices (batches sharded
   along their first axis, parameters and optimiser state replicated).
 - :func:`save_model` / :func:`load_model_state`: a trained NNX model as ``config.json`` + ``state.npz``, the
