@@ -58,26 +58,17 @@ def _config_differences(stored: dict, config: Any, independent_of: tuple[str, ..
     A field the stored config lacks was added to the code after the run started: it counts as equal when
     ``config`` holds the field's default, because a new field's default keeps the program the run was trained by
     (``StageConfig.clip_norm=None``: no clipping)."""
-    ours = _recorded(config, independent_of)
-    stored = {name: value for name, value in stored.items() if name not in independent_of}
-    differences = [prefix + name for name in sorted(set(stored) - set(ours))]  # fields the code no longer has
-    for field in dataclasses.fields(config):
-        name, value = field.name, getattr(config, field.name)
-        if name in independent_of:
-            continue
+    fields = {field.name: field for field in dataclasses.fields(config) if field.name not in independent_of}
+    differences = [prefix + name for name in sorted(set(stored) - set(fields) - set(independent_of))]  # gone since
+    for name, field in fields.items():
+        value = getattr(config, name)
         if name not in stored:
-            if field.default is not dataclasses.MISSING:
-                default = field.default
-            elif field.default_factory is not dataclasses.MISSING:
-                default = field.default_factory()
-            else:
-                differences.append(prefix + name)
-                continue
-            if to_jsonable(value) != to_jsonable(default):
+            default = field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default
+            if default is dataclasses.MISSING or to_jsonable(value) != to_jsonable(default):
                 differences.append(prefix + name)
         elif dataclasses.is_dataclass(value) and isinstance(stored[name], dict):
             differences += _config_differences(stored[name], value, prefix=f"{prefix}{name}.")
-        elif stored[name] != ours[name]:
+        elif stored[name] != to_jsonable(value):
             differences.append(prefix + name)
     return differences
 
