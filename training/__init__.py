@@ -7,7 +7,8 @@
 - :func:`data_parallel_shardings`: the one-axis ``"data"`` mesh over the local devices (batches sharded
   along their first axis, parameters and optimiser state replicated).
 - :func:`save_model` / :func:`load_model_state`: a trained NNX model as ``config.json`` + ``state.npz``, the
-  small format the project ships its models in; :func:`store_model_as` rewrites one in float16 (half the size).
+  small format the project ships its models in; :func:`store_model_as` rewrites one in float16 (half the size);
+  :func:`read_model_arrays` reads one's arrays without building the model.
 - :func:`dropout`: inverted dropout driven by an explicit key (``None``: inference).
 - :func:`process_map`: data building in CPU-only worker processes (samples and scenes are independent).
 """
@@ -22,6 +23,7 @@ from ._loop import to_jsonable as to_jsonable
 from ._provenance import provenance as provenance
 from ._provenance import SIMD_FEATURES as SIMD_FEATURES
 from ._store import load_model_state as load_model_state
+from ._store import read_model_arrays as read_model_arrays
 from ._store import save_model as save_model
 from ._store import STORAGE_DTYPES as STORAGE_DTYPES
 from ._store import store_model_as as store_model_as
