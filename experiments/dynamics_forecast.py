@@ -57,9 +57,9 @@ class Config:
     train: bool = False
     """Train the three forecasters into OUT/train (resumable) instead of using the shipped ones."""
     train_steps: int | None = None
-    """With --train: steps per model (default: dynamics.ForecastTrainConfig's 1000)."""
+    """With --train: steps per model (default: dynamics.ForecastTrainConfig's 2000; with --pairs 300)."""
     train_batch: int | None = None
-    """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32)."""
+    """With --train: windows per step (default: dynamics.ForecastTrainConfig's 32; with --pairs 16)."""
     train_lr: float | None = None
     """With --train: the peak learning rate (default: dynamics.ForecastTrainConfig's 5e-4; with --pairs 1e-4)."""
     train_clip_norm: float | None = None

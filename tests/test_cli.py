@@ -58,6 +58,25 @@ def test_help_of_every_entry_point_names_every_option(name, capsys):
     assert not missing, missing
 
 
+def test_dynamics_forecast_help_states_the_training_defaults():
+    """The defaults --help names for the forecasters' training are the configs' own (they went stale once)."""
+    import inspect
+
+    import dynamics
+    from experiments import dynamics_forecast
+
+    source = " ".join(inspect.getsource(dynamics_forecast.Config).split())
+    single = next(field.default for field in dataclasses.fields(dynamics.ForecastTrainConfig) if field.name == "stage")
+    pairs = dynamics_forecast.PAIR_TRAIN["stage"]
+    for phrase, field in (("steps per model", "steps"), ("windows per step", "batch_size"),
+                          ("the peak learning rate", "learning_rate")):
+        stated = re.search(rf"{phrase} \(default: dynamics.ForecastTrainConfig's (\S+); with --pairs (\S+)\)", source)
+        assert stated, phrase
+        assert [float(number) for number in stated.groups()] == [getattr(single, field), getattr(pairs, field)], phrase
+    stated = re.search(r"default: dynamics.ForecastTrainConfig's (\S+), with --pairs none\)", source)
+    assert stated and float(stated.group(1)) == single.clip_norm and pairs.clip_norm is None
+
+
 def test_shelf_jcsat_help_shows_the_nested_baseline_options(capsys):
     from experiments import shelf_jcsat
 
