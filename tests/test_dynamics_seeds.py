@@ -14,8 +14,8 @@ import dynamics
 from dynamics import HORIZONS
 from experiments import _cli, dynamics_renders, dynamics_seeds
 from experiments.dynamics import training_configs
-from experiments.dynamics_study import (renders_markdown, renders_summary, run_renders_study, seeds_markdown,
-                                       seeds_summary)
+from experiments.dynamics_study import (forecast_seeds_markdown, forecast_seeds_summary, renders_markdown,
+                                       renders_summary, run_renders_study, seeds_markdown, seeds_summary)
 from experiments.dynamics_study import _renders
 
 _METHODS = ("MPJAT", "ZeroMotion")
@@ -79,6 +79,70 @@ def test_the_command_writes_the_tables_and_refuses_a_folder_without_results(tmp_
             _cli.parse(dynamics_seeds.Config, ["--runs", *argv, "--out", str(tmp_path / "x")], prog="dynamics_seeds")
         assert exit_info.value.code == 2
         assert message in capsys.readouterr().err
+
+
+def _forecast_results(rng: np.random.Generator, root: str = "/data", methods=("ZeroMotion", "Constant velocity",
+                                                                                "JAT")) -> dict:
+    """A results.json of experiments.dynamics_forecast with random numbers: two actions scored, one too short."""
+    table = {method: {action: rng.uniform(20, 150, 5).tolist() for action in ("walking", "jumping")}
+             for method in methods}
+    for scores in table.values():
+        scores["average"] = np.mean([scores["walking"], scores["jumping"]], axis=0).tolist()
+    return {"fps": 25.0, "observed_frames": 25, "horizons_ms": [80, 160, 320, 400, 1000],
+            "horizon_frames": [2, 4, 8, 10, 25], "stride": 10, "people": 1,
+            "files": [f"{root}/cmu_expmap/test/{action}/{action}_1.txt"
+                      for action in ("walking", "jumping", "running")],
+            "windows": {"walking": 3, "jumping": 2, "running": 0}, "mpjpe_mm": table, "seconds": 1.0}
+
+
+def test_forecast_runs_give_each_cell_over_seeds_and_the_percentage_below_zero_motion_within_each_run():
+    rng = np.random.default_rng(3)
+    runs = [_forecast_results(rng), _forecast_results(rng, root="/elsewhere"), _forecast_results(rng)]
+    summary = forecast_seeds_summary(runs)
+    jat = np.array([run["mpjpe_mm"]["JAT"]["average"] for run in runs])
+    zero = np.array([run["mpjpe_mm"]["ZeroMotion"]["average"] for run in runs])
+    np.testing.assert_allclose(summary["mpjpe_mm"]["JAT"]["average"]["mean"], jat.mean(0))
+    np.testing.assert_allclose(summary["mpjpe_mm"]["JAT"]["walking"]["sd"],
+                               np.std([run["mpjpe_mm"]["JAT"]["walking"] for run in runs], 0, ddof=1))
+    below = 100 * (1 - jat / zero)  # paired within each run: not 1 - mean(JAT) / mean(ZeroMotion)
+    np.testing.assert_allclose(summary["below_zero_motion_percent"]["JAT"]["mean"], below.mean(0))
+    np.testing.assert_allclose(summary["below_zero_motion_percent"]["JAT"]["sd"], below.std(0, ddof=1))
+    assert list(summary["below_zero_motion_percent"]) == ["JAT"]
+    assert summary["mean_of_horizons_mm"]["JAT"]["mean"] == pytest.approx(jat.mean())
+    report = forecast_seeds_markdown(summary, ["a", "b", "c"])
+    cell = summary["mpjpe_mm"]["JAT"]["average"]
+    assert f"| JAT | {cell['mean'][0]:.1f} ± {cell['sd'][0]:.1f} |" in report and "3 training seeds" in report
+    assert "## jumping (2 windows)" in report and "running" not in report and "(5 windows)" in report
+
+
+def test_forecast_runs_of_different_evaluations_are_refused():
+    rng = np.random.default_rng(4)
+    first = _forecast_results(rng)
+    with pytest.raises(ValueError, match="at least two runs"):
+        forecast_seeds_summary([first])
+    with pytest.raises(ValueError, match=r"run 2 evaluated differently from run 1 \(stride differ\)"):
+        forecast_seeds_summary([first, {**_forecast_results(rng), "stride": 25}])
+    other_files = _forecast_results(rng)
+    other_files["files"] = other_files["files"][:2]
+    with pytest.raises(ValueError, match=r"\(files differ\)"):
+        forecast_seeds_summary([first, other_files])
+    with pytest.raises(ValueError, match="run 2 scored other methods than run 1"):
+        forecast_seeds_summary([first, _forecast_results(rng, methods=("ZeroMotion", "Constant velocity", "PHD+T"))])
+
+
+def test_the_command_takes_forecast_runs_and_refuses_a_mix(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    for name, result in (("f0", _forecast_results(rng)), ("f1", _forecast_results(rng)), ("v0", _results(rng))):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "results.json").write_text(json.dumps(result))
+    argv = lambda *names: ["--runs", *(str(tmp_path / n) for n in names), "--out", str(tmp_path / "out")]  # noqa: E731
+    dynamics_seeds.main(_cli.parse(dynamics_seeds.Config, argv("f0", "f1"), prog="dynamics_seeds"))
+    written = json.loads((tmp_path / "out" / "seeds.json").read_text())
+    assert "below_zero_motion_percent" in written["summary"]
+    assert (tmp_path / "out" / "seeds.md").read_text() in capsys.readouterr().out
+    with pytest.raises(ValueError, match=r"mixes experiments.dynamics and experiments.dynamics_forecast runs "
+                                         r"\(forecast: \S+f0, video: \S+v0\)"):
+        dynamics_seeds.main(_cli.parse(dynamics_seeds.Config, argv("f0", "v0"), prog="dynamics_seeds"))
 
 
 def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_bad_options(capsys):

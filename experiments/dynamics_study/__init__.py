@@ -2,7 +2,7 @@
 videos, written as tables (Tables 5.2-5.11's layout), prediction plots (Fig. 5.1) and a strip of observed and
 predicted meshes rendered into the video frames; ``python -m experiments.dynamics_forecast``, the 3D forecasters
 and two baselines on the CMU-Mocap benchmark's motion, per action and horizon; ``python -m
-experiments.dynamics_seeds``, the first's tables as mean and spread over training seeds; ``python -m
+experiments.dynamics_seeds``, the tables of either as mean and spread over training seeds; ``python -m
 experiments.dynamics_renders``, the renders per training clip and the conditioning stage's steps, chosen on
 validation."""
 
@@ -20,5 +20,7 @@ from ._renders import run_renders_study as run_renders_study
 from ._report import overlay_meshes as overlay_meshes
 from ._report import plot_prediction as plot_prediction
 from ._report import results_markdown as results_markdown
+from ._seeds import forecast_seeds_markdown as forecast_seeds_markdown
+from ._seeds import forecast_seeds_summary as forecast_seeds_summary
 from ._seeds import seeds_markdown as seeds_markdown
 from ._seeds import seeds_summary as seeds_summary

@@ -1,13 +1,15 @@
-"""Mean and spread over training seeds: several ``python -m experiments.dynamics`` runs of one evaluation (their
-``results.json``), cell by cell, and each forecaster's paired difference to ZeroMotion.
+"""Mean and spread over training seeds: several runs of one evaluation (their ``results.json``), cell by cell, and
+each forecaster's paired difference to ZeroMotion. :func:`seeds_summary` takes ``python -m experiments.dynamics``
+runs (video), :func:`forecast_seeds_summary` ``python -m experiments.dynamics_forecast`` runs (3D).
 
-The difference to ZeroMotion is taken within each run before it is averaged: the runs share the test renders, so
-its spread is the seeds' effect on the comparison, not the test samples' (issue 26: "below ZeroMotion by more than
-the spread over seeds")."""
+The difference to ZeroMotion is taken within each run before it is averaged: the runs share the test renders (or
+windows), so its spread is the seeds' effect on the comparison, not the test samples' (issue 26: "below ZeroMotion by
+more than the spread over seeds")."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -15,9 +17,10 @@ import numpy as np
 from dynamics import HORIZONS
 from experiments._stats import mean_and_sd
 
+from ._forecast import BASELINES
 from ._report import digits
 
-__all__ = ["seeds_markdown", "seeds_summary"]
+__all__ = ["forecast_seeds_markdown", "forecast_seeds_summary", "seeds_markdown", "seeds_summary"]
 
 _BASELINE = "ZeroMotion"
 _GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
@@ -90,3 +93,79 @@ def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
                       for method, value in rows.items()]
         lines.append("")
     return "\n".join(lines)
+
+
+_FORECAST_PROTOCOL = ("fps", "observed_frames", "horizons_ms", "horizon_frames", "stride", "people", "windows")
+
+
+def _file_names(result: Mapping) -> list[str]:
+    """The scored files by name (a pair's two joined by ``+``): the same files read from another data folder are
+    the same evaluation."""
+    return ["+".join(Path(part).name for part in entry.split("+")) for entry in result["files"]]
+
+
+def forecast_seeds_summary(results: Sequence[Mapping]) -> dict:
+    """Of ``experiments.dynamics_forecast`` runs' ``results.json``, each a ``{"mean", "sd"}`` over the runs:
+    ``mpjpe_mm`` (method, then action or pair, or ``"average"``: one value per horizon), ``mean_of_horizons_mm``
+    (each method's average over actions, then over the horizons), ``below_zero_motion_percent`` (each forecaster's
+    average MPJPE below ZeroMotion's in the same run, in % of ZeroMotion's, per horizon) and, for two-person runs,
+    ``penetration_mm``; with the evaluation's protocol (frame rate, observed frames, horizons, windows).
+
+    The runs must have scored the same files and windows with the same methods; a spread needs two."""
+    if len(results) < 2:
+        raise ValueError(f"a spread over seeds needs at least two runs, got {len(results)}")
+    for index, result in enumerate(results[1:], start=2):
+        differs = [key for key in _FORECAST_PROTOCOL if result[key] != results[0][key]]
+        differs += ["files"] if _file_names(result) != _file_names(results[0]) else []
+        if differs:
+            raise ValueError(f"run {index} evaluated differently from run 1 ({', '.join(differs)} differ): runs of "
+                             "one evaluation only")
+        if list(result["mpjpe_mm"]) != list(results[0]["mpjpe_mm"]):
+            raise ValueError(f"run {index} scored other methods than run 1 ({', '.join(result['mpjpe_mm'])} against "
+                             f"{', '.join(results[0]['mpjpe_mm'])})")
+    tables = [result["mpjpe_mm"] for result in results]
+    methods = list(tables[0])
+    summary = {key: results[0][key] for key in _FORECAST_PROTOCOL}
+    summary["mpjpe_mm"] = {method: {group: mean_and_sd(*(table[method][group] for table in tables))
+                                    for group in tables[0][method]} for method in methods}
+    summary["mean_of_horizons_mm"] = {method: mean_and_sd(*(float(np.mean(table[method]["average"]))
+                                                            for table in tables)) for method in methods}
+    summary["below_zero_motion_percent"] = {
+        method: mean_and_sd(*(100.0 * (1.0 - np.divide(table[method]["average"], table[_BASELINE]["average"]))
+                              for table in tables))
+        for method in methods if method not in BASELINES}
+    if "penetration_mm" in results[0]:
+        summary["penetration_mm"] = {method: mean_and_sd(*(result["penetration_mm"][method] for result in results))
+                                     for method in results[0]["penetration_mm"]}
+    return summary
+
+
+def forecast_seeds_markdown(summary: Mapping, runs: Sequence[str]) -> str:
+    """Tables of :func:`forecast_seeds_summary`, each cell ``mean ± sd`` over the runs: the average over actions
+    (pairs) with the mean of the horizons, the percentage below ZeroMotion, every action (pair), interpenetration."""
+    horizons = [f"{ms} ms" for ms in summary["horizons_ms"]]
+    header = lambda extra=(): ["| method | " + " | ".join([*horizons, *extra]) + " |",  # noqa: E731
+                               "|---|" + "---|" * (len(horizons) + len(extra))]
+    groups = "actions" if summary["people"] == 1 else "pairs"
+    row = lambda method, cell, decimals=1: (f"| {method} | " + " | ".join(  # noqa: E731
+        mean_sd_cell(cell, k, decimals) for k in range(len(horizons))))
+    average = summary["mpjpe_mm"]
+    lines = [f"# Mean ± sample standard deviation over {len(runs)} training seeds", "",
+             "Runs: " + ", ".join(f"`{run}`" for run in runs) + ".", "",
+             f"MPJPE (mm, 24 body joints, pelvis aligned) at {summary['fps']:g} Hz after {summary['observed_frames']} "
+             f"observed frames; windows every {summary['stride']} frames.", "",
+             f"## Average over {groups} ({sum(summary['windows'].values())} windows)", "",
+             *header(["mean of the horizons"])]
+    lines += [row(method, table["average"]) + f" | {mean_sd_cell(summary['mean_of_horizons_mm'][method])} |"
+              for method, table in average.items()]
+    lines += ["", f"## Below {_BASELINE} (%, of its MPJPE in the same run)", "", *header()]
+    lines += [row(method, cell) + " |" for method, cell in summary["below_zero_motion_percent"].items()]
+    for group, count in summary["windows"].items():
+        if count:
+            lines += ["", f"## {group} ({count} windows)", "", *header()]
+            lines += [row(method, table[group]) + " |" for method, table in average.items()]
+    if "penetration_mm" in summary:
+        lines += ["", "## Interpenetration: mean depth of a person's sampled vertices inside the other (mm)", "",
+                  *header()]
+        lines += [row(method, cell, 2) + " |" for method, cell in summary["penetration_mm"].items()]
+    return "\n".join(lines) + "\n"
