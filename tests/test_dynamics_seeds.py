@@ -109,6 +109,14 @@ def test_forecast_runs_give_each_cell_over_seeds_and_the_percentage_below_zero_m
     np.testing.assert_allclose(summary["below_zero_motion_percent"]["JAT"]["sd"], below.std(0, ddof=1))
     assert list(summary["below_zero_motion_percent"]) == ["JAT"]
     assert summary["mean_of_horizons_mm"]["JAT"]["mean"] == pytest.approx(jat.mean())
+    assert summary["differences_mm"] == {}  # one forecaster
+    ablated = [_forecast_results(rng, methods=("ZeroMotion", "JAT", "JAT w/o bias")) for _ in range(3)]
+    change = np.array([run["mpjpe_mm"]["JAT w/o bias"]["average"] for run in ablated]) - np.array(
+        [run["mpjpe_mm"]["JAT"]["average"] for run in ablated])
+    difference = forecast_seeds_summary(ablated)["differences_mm"]
+    assert list(difference) == ["JAT w/o bias - JAT"]
+    np.testing.assert_allclose(difference["JAT w/o bias - JAT"]["sd"], change.std(0, ddof=1))
+    assert "| JAT w/o bias - JAT |" in forecast_seeds_markdown(forecast_seeds_summary(ablated), ["a", "b", "c"])
     report = forecast_seeds_markdown(summary, ["a", "b", "c"])
     cell = summary["mpjpe_mm"]["JAT"]["average"]
     assert f"| JAT | {cell['mean'][0]:.1f} ± {cell['sd'][0]:.1f} |" in report and "3 training seeds" in report

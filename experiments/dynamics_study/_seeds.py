@@ -108,8 +108,10 @@ def forecast_seeds_summary(results: Sequence[Mapping]) -> dict:
     """Of ``experiments.dynamics_forecast`` runs' ``results.json``, each a ``{"mean", "sd"}`` over the runs:
     ``mpjpe_mm`` (method, then action or pair, or ``"average"``: one value per horizon), ``mean_of_horizons_mm``
     (each method's average over actions, then over the horizons), ``below_zero_motion_percent`` (each forecaster's
-    average MPJPE below ZeroMotion's in the same run, in % of ZeroMotion's, per horizon) and, for two-person runs,
-    ``penetration_mm``; with the evaluation's protocol (frame rate, observed frames, horizons, windows).
+    average MPJPE below ZeroMotion's in the same run, in % of ZeroMotion's, per horizon), ``differences_mm``
+    (``"B - A"`` for every two forecasters, A first in the runs' order: B's average MPJPE minus A's in the same run,
+    per horizon: an ablation's paired effect) and, for two-person runs, ``penetration_mm``; with the evaluation's
+    protocol (frame rate, observed frames, horizons, windows).
 
     The runs must have scored the same files and windows with the same methods; a spread needs two."""
     if len(results) < 2:
@@ -130,10 +132,15 @@ def forecast_seeds_summary(results: Sequence[Mapping]) -> dict:
                                     for group in tables[0][method]} for method in methods}
     summary["mean_of_horizons_mm"] = {method: mean_and_sd(*(float(np.mean(table[method]["average"]))
                                                             for table in tables)) for method in methods}
+    forecasters = [method for method in methods if method not in BASELINES]
     summary["below_zero_motion_percent"] = {
         method: mean_and_sd(*(100.0 * (1.0 - np.divide(table[method]["average"], table[_BASELINE]["average"]))
                               for table in tables))
-        for method in methods if method not in BASELINES}
+        for method in forecasters}
+    summary["differences_mm"] = {
+        f"{second} - {first}": mean_and_sd(*(np.subtract(table[second]["average"], table[first]["average"])
+                                             for table in tables))
+        for index, first in enumerate(forecasters) for second in forecasters[index + 1:]}
     if "penetration_mm" in results[0]:
         summary["penetration_mm"] = {method: mean_and_sd(*(result["penetration_mm"][method] for result in results))
                                      for method in results[0]["penetration_mm"]}
@@ -142,7 +149,8 @@ def forecast_seeds_summary(results: Sequence[Mapping]) -> dict:
 
 def forecast_seeds_markdown(summary: Mapping, runs: Sequence[str]) -> str:
     """Tables of :func:`forecast_seeds_summary`, each cell ``mean ± sd`` over the runs: the average over actions
-    (pairs) with the mean of the horizons, the percentage below ZeroMotion, every action (pair), interpenetration."""
+    (pairs) with the mean of the horizons, the percentage below ZeroMotion, the differences between forecasters, every
+    action (pair), interpenetration."""
     horizons = [f"{ms} ms" for ms in summary["horizons_ms"]]
     header = lambda extra=(): ["| method | " + " | ".join([*horizons, *extra]) + " |",  # noqa: E731
                                "|---|" + "---|" * (len(horizons) + len(extra))]
@@ -160,6 +168,9 @@ def forecast_seeds_markdown(summary: Mapping, runs: Sequence[str]) -> str:
               for method, table in average.items()]
     lines += ["", f"## Below {_BASELINE} (%, of its MPJPE in the same run)", "", *header()]
     lines += [row(method, cell) + " |" for method, cell in summary["below_zero_motion_percent"].items()]
+    if summary["differences_mm"]:
+        lines += ["", "## Between forecasters (mm, one's MPJPE minus the other's in the same run)", "", *header()]
+        lines += [row(pair, cell) + " |" for pair, cell in summary["differences_mm"].items()]
     for group, count in summary["windows"].items():
         if count:
             lines += ["", f"## {group} ({count} windows)", "", *header()]
