@@ -61,7 +61,7 @@ def store_model_as(path: str | Path, dtype: str) -> None:
     path = Path(path)
     _check_model_folder(path)
     _read_config(path / "config.json")
-    _write_model(path, {"state.npz": _stored_arrays(read_model_arrays(path), dtype, path)})
+    _write_model(path, {"state.npz": _stored_arrays(_read_arrays(path / "state.npz"), dtype, path)})
 
 
 _BYTE_PLANES = "|byte planes of "

@@ -152,31 +152,38 @@ def forecast_seeds_markdown(summary: Mapping, runs: Sequence[str]) -> str:
     (pairs) with the mean of the horizons, the percentage below ZeroMotion, the differences between forecasters, every
     action (pair), interpenetration."""
     horizons = [f"{ms} ms" for ms in summary["horizons_ms"]]
-    header = lambda extra=(): ["| method | " + " | ".join([*horizons, *extra]) + " |",  # noqa: E731
-                               "|---|" + "---|" * (len(horizons) + len(extra))]
+    scores = summary["mpjpe_mm"]
     groups = "actions" if summary["people"] == 1 else "pairs"
-    row = lambda method, cell, decimals=1: (f"| {method} | " + " | ".join(  # noqa: E731
-        mean_sd_cell(cell, k, decimals) for k in range(len(horizons))))
-    average = summary["mpjpe_mm"]
     lines = [f"# Mean ± sample standard deviation over {len(runs)} training seeds", "",
              "Runs: " + ", ".join(f"`{run}`" for run in runs) + ".", "",
              f"MPJPE (mm, 24 body joints, pelvis aligned) at {summary['fps']:g} Hz after {summary['observed_frames']} "
-             f"observed frames; windows every {summary['stride']} frames.", "",
-             f"## Average over {groups} ({sum(summary['windows'].values())} windows)", "",
-             *header(["mean of the horizons"])]
-    lines += [row(method, table["average"]) + f" | {mean_sd_cell(summary['mean_of_horizons_mm'][method])} |"
-              for method, table in average.items()]
-    lines += ["", f"## Below {_BASELINE} (%, of its MPJPE in the same run)", "", *header()]
-    lines += [row(method, cell) + " |" for method, cell in summary["below_zero_motion_percent"].items()]
+             f"observed frames; windows every {summary['stride']} frames."]
+    lines += _horizon_table(f"Average over {groups} ({sum(summary['windows'].values())} windows)", horizons,
+                            {method: table["average"] for method, table in scores.items()},
+                            last=("mean of the horizons", summary["mean_of_horizons_mm"]))
+    lines += _horizon_table(f"Below {_BASELINE} (%, of its MPJPE in the same run)", horizons,
+                            summary["below_zero_motion_percent"])
     if summary["differences_mm"]:
-        lines += ["", "## Between forecasters (mm, one's MPJPE minus the other's in the same run)", "", *header()]
-        lines += [row(pair, cell) + " |" for pair, cell in summary["differences_mm"].items()]
+        lines += _horizon_table("Between forecasters (mm, one's MPJPE minus the other's in the same run)", horizons,
+                                summary["differences_mm"])
     for group, count in summary["windows"].items():
         if count:
-            lines += ["", f"## {group} ({count} windows)", "", *header()]
-            lines += [row(method, table[group]) + " |" for method, table in average.items()]
+            lines += _horizon_table(f"{group} ({count} windows)", horizons,
+                                    {method: table[group] for method, table in scores.items()})
     if "penetration_mm" in summary:
-        lines += ["", "## Interpenetration: mean depth of a person's sampled vertices inside the other (mm)", "",
-                  *header()]
-        lines += [row(method, cell, 2) + " |" for method, cell in summary["penetration_mm"].items()]
+        lines += _horizon_table("Interpenetration: mean depth of a person's sampled vertices inside the other (mm)",
+                                horizons, summary["penetration_mm"], decimals=2)
     return "\n".join(lines) + "\n"
+
+
+def _horizon_table(title: str, horizons: Sequence[str], rows: Mapping[str, Mapping], decimals: int = 1,
+                   last: tuple[str, Mapping[str, Mapping]] | None = None) -> list[str]:
+    """A section of :func:`forecast_seeds_markdown`: ``title``, then a row per name of ``rows`` (a ``{"mean", "sd"}``
+    cell per horizon), with ``last`` = (heading, a single cell per name) as a final column."""
+    headings = [*horizons, *([last[0]] if last else [])]
+    lines = ["", f"## {title}", "", "| method | " + " | ".join(headings) + " |", "|---|" + "---|" * len(headings)]
+    for name, cell in rows.items():
+        cells = [mean_sd_cell(cell, k, decimals) for k in range(len(horizons))]
+        cells += [mean_sd_cell(last[1][name], digits=decimals)] if last else []
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
