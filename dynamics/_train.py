@@ -81,6 +81,11 @@ class StageConfig:
     clip_norm: float | None = None
     """The trained parameters' gradients are scaled down to this global norm when larger, before Adam (None: never
     clipped). The prior's are not. The logged ``grad_norm`` is the norm before clipping, so spikes stay visible."""
+    average_decay: float | None = None
+    """Keep an exponential moving average of the trained parameters, ``a <- d a + (1 - d) p`` after every step from
+    the initial parameters (Polyak averaging), and validate and return it instead of the parameters (None: no
+    average). The parameters' own validation is logged beside it (each name prefixed ``raw_``); the checkpoints hold
+    both."""
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1:
@@ -89,6 +94,8 @@ class StageConfig:
             raise ValueError(f"warmup_steps must be in [0, steps={self.steps}), got {self.warmup_steps}")
         if self.clip_norm is not None and not self.clip_norm > 0:
             raise ValueError(f"clip_norm must be positive (or None), got {self.clip_norm}")
+        if self.average_decay is not None and not 0 < self.average_decay < 1:
+            raise ValueError(f"average_decay must be in (0, 1) (or None), got {self.average_decay}")
 
     def schedule(self, peak: float) -> optax.Schedule:
         return optax.warmup_cosine_decay_schedule(0.0, peak, self.warmup_steps, self.steps, peak * self.end_lr_fraction)
@@ -140,6 +147,8 @@ class TrainState(NamedTuple):
     prior_opt: optax.OptState
     step: jax.Array
     key: jax.Array
+    average: Any = None
+    """The moving average of ``params`` (:attr:`StageConfig.average_decay`), or None (then not checkpointed)."""
 
 
 def check_crop_sizes(crop_size: int, **data: DataConfig) -> None:
@@ -239,14 +248,15 @@ _ADAM = optax.scale_by_adam()
 """Adam less its step size, for the trained parts and for the prior: the step takes its rates as values."""
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4, 5))
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4, 5, 6))
 def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective: Callable, config: Any,
-                replicated: NamedSharding, clip_norm: float | None, rest: Any, body: geometry.BodyModel,
-                state: TrainState, batch: Any, key: jax.Array, learning_rate: ArrayLike, discriminator_lr: ArrayLike
-                ) -> tuple[TrainState, dict[str, jax.Array]]:
+                replicated: NamedSharding, clip_norm: float | None, average_decay: float | None, rest: Any,
+                body: geometry.BodyModel, state: TrainState, batch: Any, key: jax.Array, learning_rate: ArrayLike,
+                discriminator_lr: ArrayLike) -> tuple[TrainState, dict[str, jax.Array]]:
     """One Adam step of the trained parameters on ``objective`` (their gradients clipped to ``clip_norm``,
-    :attr:`StageConfig.clip_norm`) and one of the prior on its LSGAN loss. A module-level function of hashable
-    static arguments, so the runs of one setting share one compilation."""
+    :attr:`StageConfig.clip_norm`; their moving average, if ``state`` keeps one, moved on by ``average_decay``) and
+    one of the prior on its LSGAN loss. A module-level function of hashable static arguments, so the runs of one
+    setting share one compilation."""
     prior = nnx.merge(prior_graphdef, state.prior)
 
     def loss(params):
@@ -269,9 +279,10 @@ def _train_step(graphdef: nnx.GraphDef, prior_graphdef: nnx.GraphDef, objective:
 
     d_loss, d_grads = jax.value_and_grad(prior_loss)(state.prior)
     d_direction, prior_opt = _ADAM.update(d_grads, state.prior_opt, state.prior)
-    new_state = TrainState(optax.apply_updates(state.params, optax.tree.scale(-learning_rate, direction)),
-                           optax.apply_updates(state.prior, optax.tree.scale(-discriminator_lr, d_direction)),
-                           opt, prior_opt, state.step + 1, state.key)
+    params = optax.apply_updates(state.params, optax.tree.scale(-learning_rate, direction))
+    average = None if state.average is None else optax.incremental_update(params, state.average, 1.0 - average_decay)
+    new_state = TrainState(params, optax.apply_updates(state.prior, optax.tree.scale(-discriminator_lr, d_direction)),
+                           opt, prior_opt, state.step + 1, state.key, average)
     metrics = {"loss": total, **terms, "discriminator": d_loss, "grad_norm": optax.tree.norm(grads)}
     return jax.lax.with_sharding_constraint((new_state, metrics), replicated)
 
@@ -288,24 +299,31 @@ def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model:
     replicated, batch_sharding = training.data_parallel_shardings(stage.batch_size)
     graphdef, params, rest = nnx.split(model, trainable, ...)
     prior_graphdef, prior_params = nnx.split(PosePrior(config.model.num_shapes, rngs=nnx.Rngs(config.seed + 1)))
+    average = None if stage.average_decay is None else jax.tree.map(jnp.copy, params)
     state = TrainState(params, prior_params, _ADAM.init(params), _ADAM.init(prior_params), jnp.asarray(0, jnp.int32),
-                       jax.random.key(config.seed))
+                       jax.random.key(config.seed), average)
     learning_rate, discriminator_lr = stage.schedule(stage.learning_rate), stage.schedule(stage.discriminator_lr)
     rest, body = jax.device_put((rest, body), replicated)
 
     def step(state: TrainState, i: int):
         sample_key, dropout_key = jax.random.split(jax.random.fold_in(state.key, i))
         batch = jax.device_put(sample(sample_key), batch_sharding)
-        return _train_step(graphdef, prior_graphdef, objective, config, replicated, stage.clip_norm, rest, body,
-                           state, batch, dropout_key, learning_rate(i), discriminator_lr(i))
+        return _train_step(graphdef, prior_graphdef, objective, config, replicated, stage.clip_norm,
+                           stage.average_decay, rest, body, state, batch, dropout_key, learning_rate(i),
+                           discriminator_lr(i))
+
+    def validate_state(state: TrainState) -> dict[str, float]:
+        if state.average is None:
+            return validate(nnx.merge(graphdef, state.params, rest))
+        raw = validate(nnx.merge(graphdef, state.params, rest))
+        return {**validate(nnx.merge(graphdef, state.average, rest)), **{f"raw_{k}": v for k, v in raw.items()}}
 
     state = training.run_training(
         workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
-        validate=lambda state: validate(nnx.merge(graphdef, state.params, rest)), replicated=replicated,
-        learning_rate=learning_rate, independent_of=later, log=log, progress=progress,
-        description=f"dynamics {name}")
-    return nnx.merge(graphdef, state.params, rest)
+        validate=validate_state, replicated=replicated, learning_rate=learning_rate, independent_of=later, log=log,
+        progress=progress, description=f"dynamics {name}")
+    return nnx.merge(graphdef, state.params if state.average is None else state.average, rest)
 
 
 # ----------------------------------------------------------------------------------------------

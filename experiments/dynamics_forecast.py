@@ -65,6 +65,9 @@ class Config:
     train_clip_norm: float | None = None
     """With --train: clip the gradients to this global norm before Adam, 0: not at all (dynamics.StageConfig.clip_norm;
     default: dynamics.ForecastTrainConfig's 500, with --pairs none)."""
+    train_average_decay: float | None = None
+    """With --train: validate and keep a moving average of the parameters with this decay per step, in (0, 1), 0: the
+    parameters themselves (dynamics.StageConfig.average_decay; default: dynamics.ForecastTrainConfig's, none)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""
@@ -109,6 +112,8 @@ class Config:
             raise ValueError(f"--train-lr must be positive, got {self.train_lr}")
         if self.train_clip_norm is not None and not self.train_clip_norm >= 0:
             raise ValueError(f"--train-clip-norm must be >= 0 (0: no clipping), got {self.train_clip_norm}")
+        if self.train_average_decay is not None and not 0 <= self.train_average_decay < 1:
+            raise ValueError(f"--train-average-decay must be in [0, 1) (0: no average), got {self.train_average_decay}")
         for name in ("train_steps", "train_batch", "train_width"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -148,9 +153,10 @@ class Config:
             return dataclasses.replace(config, **QUICK_TRAIN)
         changes = {name: value for name, value in (
             ("steps", self.train_steps), ("batch_size", self.train_batch), ("learning_rate", self.train_lr),
-            ("clip_norm", self.train_clip_norm)) if value is not None}
-        if changes.get("clip_norm") == 0:  # the option's 0, StageConfig's None
-            changes["clip_norm"] = None
+            ("clip_norm", self.train_clip_norm), ("average_decay", self.train_average_decay)) if value is not None}
+        for name in ("clip_norm", "average_decay"):
+            if changes.get(name) == 0:  # the option's 0, StageConfig's None
+                changes[name] = None
         return dataclasses.replace(config, stage=dataclasses.replace(config.stage, **changes))
 
     def model_changes(self) -> dict:

@@ -9,6 +9,7 @@ import unittest.mock
 import jax
 import jax.numpy as jnp
 import numpy as np
+import orbax.checkpoint as ocp
 import pytest
 from flax import nnx
 from hypothesis import given, settings
@@ -326,6 +327,39 @@ def test_clipping_scales_the_gradient_down_before_adam(data_root, tmp_path):
         logged[clip_norm] = records[0]["grad_norm"]
     assert moved[None] > 0.5 * stage.learning_rate and moved[1e-12] < 1e-3 * stage.learning_rate
     assert logged[None] == logged[1e-12] > 1e-3
+
+
+def test_the_moving_average_is_what_the_stage_validates_returns_and_resumes(data_root, tmp_path):
+    """With ``average_decay`` d the stage returns a <- d a + (1 - d) p from the initial parameters, computed here from
+    the unaveraged run's parameters (the same steps: the average does not change training); its validation is
+    logged as ``val_*`` and the parameters' as ``raw_val_*``. A run killed after its first checkpoint resumes to the
+    same average, and the unaveraged run's checkpoints keep their fields."""
+    files = _short_files(data_root, tmp_path)
+    model = dynamics.ForecasterConfig(phdt=dataclasses.replace(TINY_PHDT, tcn_blocks=1))
+    stage = dynamics.StageConfig(steps=2, batch_size=2, learning_rate=1e-3, warmup_steps=0)
+    config = lambda **changes: dynamics.ForecastTrainConfig(  # noqa: E731
+        tuple(files[:2]), tuple(files[2:]), model=model, speeds=(1.0,), mirror=False, observed=6, horizon=3,
+        stage=dataclasses.replace(stage, **changes), log_interval=1, validation_interval=1, checkpoint_interval=1,
+        cache_dir=str(tmp_path / "cache"))
+    decay = 0.75
+    dynamics.train_forecaster(config(), tmp_path / "plain", BODY, resume=False, progress=False)
+    checkpoints = tmp_path / "plain" / "forecast" / "checkpoints"
+    params = [jax.tree.leaves(nnx.state(dynamics.initial_forecaster(model, 0), nnx.Param))] + [  # after steps 0, 1, 2
+        jax.tree.leaves(ocp.StandardCheckpointer().restore(checkpoints / str(step) / "default")["params"])
+        for step in (1, 2)]
+    assert "average" not in ocp.StandardCheckpointer().restore(checkpoints / "2" / "default")
+    expected = [decay ** 2 * p0 + decay * (1 - decay) * p1 + (1 - decay) * p2 for p0, p1, p2 in zip(*params)]
+    records = []
+    averaged = dynamics.train_forecaster(config(average_decay=decay), tmp_path / "averaged", BODY, resume=False,
+                                         log=records.append, progress=False)
+    for got, want in zip(jax.tree.leaves(nnx.state(averaged, nnx.Param)), expected, strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-7)
+    assert {"val_future_mpjpe_mm", "raw_val_future_mpjpe_mm"} <= set(records[-1])
+    assert records[-1]["val_future_mpjpe_mm"] != records[-1]["raw_val_future_mpjpe_mm"]
+    shutil.rmtree(tmp_path / "averaged" / "forecast" / "checkpoints" / "2")  # killed after step 1's checkpoint
+    resumed = dynamics.train_forecaster(config(average_decay=decay), tmp_path / "averaged", BODY, resume=True,
+                                        progress=False)
+    assert_same_parameters(resumed, averaged)
 
 
 def _frames(video, person, frame) -> dynamics.PoseFrames:

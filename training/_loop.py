@@ -93,6 +93,12 @@ def _truncate_log(path: Path, last_step: int) -> None:
     path.write_text("".join(line + "\n" for line in kept))
 
 
+def _checkpointed(state: Any) -> dict:
+    """The fields of ``state`` a checkpoint holds: all but those that are None (a part the run does not keep, such
+    as a moving average it does not take), so that adding such a field leaves older checkpoints restorable."""
+    return {name: value for name, value in state._asdict().items() if value is not None}
+
+
 def _restore_latest(manager: ocp.CheckpointManager, state: S) -> tuple[S, int]:
     """The state of the latest checkpoint that restores and its step. A newer one that does not (corrupt,
     half-deleted) is skipped with a warning naming its step and deleted once an older one restored, so the
@@ -101,7 +107,7 @@ def _restore_latest(manager: ocp.CheckpointManager, state: S) -> tuple[S, int]:
     failed: list[tuple[int, Exception]] = []
     for step in sorted(manager.all_steps(), reverse=True):
         try:
-            restored = manager.restore(step, args=ocp.args.StandardRestore(abstract._asdict()))
+            restored = manager.restore(step, args=ocp.args.StandardRestore(_checkpointed(abstract)))
         except Exception as error:  # orbax and tensorstore raise many types for a damaged checkpoint
             failed.append((step, error))
             continue
@@ -138,9 +144,9 @@ def run_training(
     """Run ``state = step(state, i)`` for ``i`` from the state's step count to ``steps`` in ``workdir``; return it.
 
     ``state`` is the step-0 state, a NamedTuple of arrays with a ``step`` field (the number of steps taken):
-    exactly what a checkpoint holds. ``step`` must be a deterministic function of ``(state, i)`` (draw
-    step i's randomness from ``fold_in(key, i)``), so that a resumed run repeats an uninterrupted one bit for
-    bit. It returns the new state and the step's metrics.
+    exactly what a checkpoint holds (less its fields that are None). ``step`` must be a deterministic function of
+    ``(state, i)`` (draw step i's randomness from ``fold_in(key, i)``), so that a resumed run repeats an
+    uninterrupted one bit for bit. It returns the new state and the step's metrics.
 
     Files in ``workdir``: ``config.json`` (``config``, a dataclass, less its top-level fields named in
     ``independent_of``: those the run does not read, such as a later training stage's, so that changing them
@@ -207,7 +213,7 @@ def run_training(
                 if done % validation_interval == 0 or done == steps:
                     record.update(validate(state))
                 if done % checkpoint_interval == 0 or done == steps:
-                    manager.save(done, args=ocp.args.StandardSave(state._asdict()))
+                    manager.save(done, args=ocp.args.StandardSave(_checkpointed(state)))
                 if record:
                     record = {"step": done, **record}
                     log_file.write(json.dumps(record) + "\n")
