@@ -503,6 +503,10 @@ def test_command_line_training_options(data_root, tmp_path):
     for option, clip_norm in ((10.0, 10.0), (0.0, None)):  # 0: unclipped
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_clip_norm=option).train_config(
             ("a.txt",), ("b.txt",)).stage.clip_norm == clip_norm
+    assert train.stage.average_decay is None  # no average by default
+    for option, decay in ((0.99, 0.99), (0.0, None)):  # 0: no average
+        assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_average_decay=option).train_config(
+            ("a.txt",), ("b.txt",)).stage.average_decay == decay
     with unittest.mock.patch.object(dynamics_forecast, "train_forecasters", side_effect=KeyboardInterrupt) as train:
         with pytest.raises(KeyboardInterrupt):
             dynamics_forecast.main(dynamics_forecast.Config(out=tmp_path / "wide", data_root=data_root, train=True,
@@ -513,6 +517,7 @@ def test_command_line_training_options(data_root, tmp_path):
                              ({"train_width": 0}, "--train-width must be >= 1"),
                              ({"train_lr": 0.0}, "--train-lr must be positive"),
                              ({"train_clip_norm": -1.0}, "--train-clip-norm must be >= 0"),
+                             ({"train_average_decay": 1.0}, r"--train-average-decay must be in \[0, 1\)"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
                              ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):

@@ -60,6 +60,11 @@ def test_runs_of_different_evaluations_or_one_run_are_refused():
         seeds_summary([first, {**second, "config": {"clips": ["02_01_walk"], "stride": 5}}])
     with pytest.raises(ValueError, match="run 2 scored other groups or methods"):
         seeds_summary([first, _results(rng, frames=20)])
+    incomplete = _results(rng)
+    del incomplete["summary"]["two_person"]["prediction"]["ZeroMotion"]
+    with pytest.raises(ValueError, match=r"run 2's results.json lacks summary.two_person.prediction.ZeroMotion.mpjpe: "
+                                         "not as experiments.dynamics writes it"):
+        seeds_summary([first, incomplete])
 
 
 def test_the_command_writes_the_tables_and_refuses_a_folder_without_results(tmp_path, capsys):
@@ -136,6 +141,11 @@ def test_forecast_runs_of_different_evaluations_are_refused():
         forecast_seeds_summary([first, other_files])
     with pytest.raises(ValueError, match="run 2 scored other methods than run 1"):
         forecast_seeds_summary([first, _forecast_results(rng, methods=("ZeroMotion", "Constant velocity", "PHD+T"))])
+    edited = {key: value for key, value in _forecast_results(rng).items() if key != "fps"}
+    del edited["mpjpe_mm"]["JAT"]["average"]
+    with pytest.raises(ValueError, match=r"run 1's results.json lacks fps, mpjpe_mm.JAT.average: not as "
+                                         "experiments.dynamics_forecast writes it"):
+        forecast_seeds_summary([edited, first])
 
 
 def test_the_command_takes_forecast_runs_and_refuses_a_mix(tmp_path, capsys):

@@ -246,3 +246,6 @@ def test_config_errors(cache_dir):
         dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=4)
     with pytest.raises(ValueError, match="clip_norm must be positive"):
         dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1, clip_norm=0.0)
+    for decay in (0.0, 1.0):
+        with pytest.raises(ValueError, match=r"average_decay must be in \(0, 1\)"):
+            dynamics.StageConfig(steps=4, batch_size=2, learning_rate=1e-3, warmup_steps=1, average_decay=decay)

@@ -34,6 +34,8 @@ from dynamics import (FORECAST_FPS, FORECAST_HORIZONS_MS, PoseForecaster, SMPLPa
                       constant_velocity_forecast, params_to_joints, penetration_mm, pose_frames, scene_rows,
                       zero_motion_forecast)
 
+from ._report import PENETRATION_TITLE, markdown_table
+
 __all__ = ["BASELINES", "forecast_markdown", "plot_forecast", "run_forecast_study"]
 
 BASELINES: dict[str, Callable] = {"ZeroMotion": zero_motion_forecast, "Constant velocity": constant_velocity_forecast}
@@ -143,8 +145,7 @@ def run_forecast_study(out: str | Path, models: Mapping[str, PoseForecaster], bo
 def forecast_markdown(summary: Mapping) -> str:
     """The average over actions (pairs), then one table per action (pair): MPJPE (mm) of every method at every
     horizon; then the interpenetration of two-person scenes."""
-    header = ["| method | " + " | ".join(f"{ms} ms" for ms in summary["horizons_ms"]) + " |",
-              "|---|" + "---|" * len(summary["horizons_ms"])]
+    horizons = [f"{ms} ms" for ms in summary["horizons_ms"]]
     unscored = [action for action, count in summary["windows"].items() if count == 0]
     groups = "actions" if summary["people"] == 1 else "pairs"
     tables = {"average": f"Average over {groups}"} | {group: group for group in summary["windows"]
@@ -156,14 +157,11 @@ def forecast_markdown(summary: Mapping) -> str:
                      f"frames): {', '.join(unscored)}.")
     for key, title in tables.items():
         count = sum(summary["windows"].values()) if key == "average" else summary["windows"][key]
-        lines += ["", f"## {title} ({count} windows)", "", *header]
-        for method, table in summary["mpjpe_mm"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{value:.1f}" for value in table[key]) + " |")
+        lines += markdown_table(f"{title} ({count} windows)", horizons, {
+            method: [f"{value:.1f}" for value in table[key]] for method, table in summary["mpjpe_mm"].items()})
     if "penetration_mm" in summary:
-        lines += ["", "## Interpenetration: mean depth of a person's sampled vertices inside the other (mm)", "",
-                  *header]
-        for method, values in summary["penetration_mm"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{value:.2f}" for value in values) + " |")
+        lines += markdown_table(PENETRATION_TITLE, horizons, {
+            method: [f"{value:.2f}" for value in values] for method, values in summary["penetration_mm"].items()})
     return "\n".join(lines) + "\n"
 
 

@@ -12,35 +12,44 @@ import geometry
 import mocap
 from dynamics import HORIZONS
 
-__all__ = ["overlay_meshes", "plot_prediction", "results_markdown"]
+__all__ = ["markdown_table", "overlay_meshes", "plot_prediction", "results_markdown"]
 
 _NAMES = {"pa_mpjpe": "PA-MPJPE (mm) ↓", "mpjpe": "MPJPE (mm) ↓", "pck": "PCK@0.05 (%) ↑", "root": "root (mm) ↓"}
 _CONDITIONING = {**_NAMES, "depth_ratio": "depth / true depth"}
-_GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
+PENETRATION_TITLE = "Interpenetration: mean depth of a person's sampled vertices inside the other (mm)"
+GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
 
 
 def results_markdown(summary: Mapping[str, dict]) -> str:
     """Per sample group: a conditioning table (Table 5.2's layout, and the depth ratio), one prediction table per
     metric of :data:`~dynamics.METRICS` but the depth ratio at :data:`HORIZONS` (Tables 5.4-5.11's), and for
     two-person samples the mean interpenetration depth of every method and of the ground truth."""
-    horizon_header = ["| method | " + " | ".join(f"@{k}" for k in HORIZONS) + " |", "|---|" + "---|" * len(HORIZONS)]
+    frames = [f"@{k}" for k in HORIZONS]
     lines = []
     for group, result in summary.items():
-        lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
-                  "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
-        for method, metrics in result["conditioning"].items():
-            lines.append(f"| {method} | " + " | ".join(f"{metrics[m]:.{digits(m)}f}" for m in _CONDITIONING) + " |")
+        lines.append(f"## {GROUP_TITLES[group]} ({result['samples']} samples)")
+        lines += markdown_table("Conditioning", list(_CONDITIONING.values()), {
+            method: [f"{metrics[m]:.{digits(m)}f}" for m in _CONDITIONING]
+            for method, metrics in result["conditioning"].items()}, level=3)
         for metric, title in _NAMES.items():
-            lines += ["", f"### Prediction: {title} at future frame", "", *horizon_header]
-            for method, metrics in result["prediction"].items():
-                lines.append(f"| {method} | " + " | ".join(f"{metrics[metric][k - 1]:.1f}" for k in HORIZONS) + " |")
+            lines += markdown_table(f"Prediction: {title} at future frame", frames, {
+                method: [f"{metrics[metric][k - 1]:.1f}" for k in HORIZONS]
+                for method, metrics in result["prediction"].items()}, level=3)
         if "penetration" in result:
-            lines += ["", "### Interpenetration: mean depth of a person's sampled vertices inside the other (mm) ↓",
-                      "", *horizon_header]
-            for method, values in result["penetration"].items():
-                lines.append(f"| {method} | " + " | ".join(f"{values[k - 1]:.2f}" for k in HORIZONS) + " |")
+            lines += markdown_table(f"{PENETRATION_TITLE} ↓", frames, {
+                method: [f"{values[k - 1]:.2f}" for k in HORIZONS] for method, values in result["penetration"].items()},
+                level=3)
         lines.append("")
     return "\n".join(lines)
+
+
+def markdown_table(title: str, headings: Sequence[str], rows: Mapping[str, Sequence[str]], level: int = 2
+                   ) -> list[str]:
+    """The lines of a report's section: a blank line, ``title`` as a heading of ``level``, a blank line and a table
+    with a ``method`` column holding the names of ``rows`` and a column per heading, each row's cells as formatted.
+    Every table of the dynamics reports is laid out by it."""
+    return ["", f"{'#' * level} {title}", "", "| method | " + " | ".join(headings) + " |", "|---|" + "---|" * len(headings),
+            *(f"| {name} | " + " | ".join(cells) + " |" for name, cells in rows.items())]
 
 
 def digits(metric: str) -> int:
@@ -61,7 +70,7 @@ def plot_prediction(summary: Mapping[str, dict], group: str, path) -> None:
         axis.set_title(_NAMES[metric])
         axis.grid(alpha=0.3)
     axes[0].legend()
-    figure.suptitle(f"Prediction, {_GROUP_TITLES[group]}")
+    figure.suptitle(f"Prediction, {GROUP_TITLES[group]}")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
 

@@ -8,7 +8,7 @@ more than the spread over seeds")."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
@@ -18,12 +18,11 @@ from dynamics import HORIZONS
 from experiments._stats import mean_and_sd
 
 from ._forecast import BASELINES
-from ._report import digits
+from ._report import GROUP_TITLES, PENETRATION_TITLE, digits, markdown_table
 
 __all__ = ["forecast_seeds_markdown", "forecast_seeds_summary", "seeds_markdown", "seeds_summary"]
 
 _BASELINE = "ZeroMotion"
-_GROUP_TITLES = {"single_person": "single-person samples", "two_person": "two-person samples", "all": "all samples"}
 _CONDITIONING = {"mpjpe": "MPJPE (mm)", "pa_mpjpe": "PA-MPJPE (mm)", "root": "root (mm)",
                  "depth_ratio": "depth / true depth"}
 _PREDICTION = {"mpjpe": "MPJPE (mm) ↓", "pa_mpjpe": "PA-MPJPE (mm) ↓", "root": "root (mm) ↓"}
@@ -41,6 +40,11 @@ def seeds_summary(results: Sequence[Mapping]) -> dict:
     The runs must have evaluated the same way (equal ``config``: clips, test seed, windows); a spread needs two."""
     if len(results) < 2:
         raise ValueError(f"a spread over seeds needs at least two runs, got {len(results)}")
+    _check_complete(results, "experiments.dynamics", lambda result: [
+        f"summary.{group}.{part}" for group, summary in result["summary"].items()
+        for part in ("samples", "conditioning", "prediction") if part not in summary] + [
+        f"summary.{group}.prediction.{_BASELINE}.mpjpe" for group, summary in result["summary"].items()
+        if "mpjpe" not in summary.get("prediction", {}).get(_BASELINE, {})])
     for index, result in enumerate(results[1:], start=2):
         if result["config"] != results[0]["config"]:
             raise ValueError(f"run {index} evaluated differently from run 1 (its results.json config differs): "
@@ -61,6 +65,16 @@ def seeds_summary(results: Sequence[Mapping]) -> dict:
     return out
 
 
+def _check_complete(results: Sequence[Mapping], command: str, missing: Callable[[Mapping], list[str]]) -> None:
+    """Refuse a run whose ``results.json`` lacks what the summary reads (``missing(result)``: the absent keys,
+    dotted), by its number and the first keys, instead of a ``KeyError`` from inside (a file edited by hand, or
+    written by an older version)."""
+    for index, result in enumerate(results, start=1):
+        absent = missing(result)
+        if absent:
+            raise ValueError(f"run {index}'s results.json lacks {', '.join(absent[:3])}: not as {command} writes it")
+
+
 def mean_sd_cell(value: Mapping, frame: int | None = None, digits: int = 1) -> str:
     """``"mean ± sd"`` of a ``{"mean", "sd"}`` cell (at index ``frame`` of per-frame lists)."""
     mean, sd = (value["mean"], value["sd"]) if frame is None else (value["mean"][frame], value["sd"][frame])
@@ -70,27 +84,24 @@ def mean_sd_cell(value: Mapping, frame: int | None = None, digits: int = 1) -> s
 def seeds_markdown(summary: Mapping[str, dict], runs: Sequence[str]) -> str:
     """Tables of :func:`seeds_summary`: conditioning, prediction at :data:`~dynamics.HORIZONS`, the difference to
     ZeroMotion and, for two-person samples, interpenetration, each cell ``mean ± sd`` over the runs."""
-    horizon_header = ["| method | " + " | ".join(f"@{k}" for k in HORIZONS) + " |", "|---|" + "---|" * len(HORIZONS)]
     lines = [f"# Mean ± sample standard deviation over {len(runs)} training seeds", "",
              "Runs: " + ", ".join(f"`{run}`" for run in runs) + ".", ""]
     for group, result in summary.items():
-        lines += [f"## {_GROUP_TITLES[group]} ({result['samples']} samples)", "", "### Conditioning", "",
-                  "| method | " + " | ".join(_CONDITIONING.values()) + " |", "|---|" + "---|" * len(_CONDITIONING)]
-        lines += [f"| {method} | " + " | ".join(mean_sd_cell(metrics[m], digits=digits(m))
-                                                     for m in _CONDITIONING) + " |"
-                  for method, metrics in result["conditioning"].items()]
+        lines.append(f"## {GROUP_TITLES[group]} ({result['samples']} samples)")
+        lines += markdown_table("Conditioning", list(_CONDITIONING.values()), {
+            method: [mean_sd_cell(metrics[m], digits=digits(m)) for m in _CONDITIONING]
+            for method, metrics in result["conditioning"].items()}, level=3)
         tables = [(f"Prediction: {title} at future frame", {method: metrics[metric]
                                                             for method, metrics in result["prediction"].items()}, 1)
                   for metric, title in _PREDICTION.items()]
         tables.append((f"MPJPE minus {_BASELINE}'s in the same run (mm; below zero: better than {_BASELINE})",
                        result["below_zero_motion"], 1))
         if "penetration" in result:
-            tables.append(("Interpenetration: mean depth of a person's sampled vertices inside the other (mm) ↓",
-                           result["penetration"], 2))
+            tables.append((f"{PENETRATION_TITLE} ↓", result["penetration"], 2))
         for title, rows, decimals in tables:
-            lines += ["", f"### {title}", "", *horizon_header]
-            lines += [f"| {method} | " + " | ".join(mean_sd_cell(value, k - 1, decimals) for k in HORIZONS) + " |"
-                      for method, value in rows.items()]
+            lines += markdown_table(title, [f"@{k}" for k in HORIZONS], {
+                method: [mean_sd_cell(value, k - 1, decimals) for k in HORIZONS] for method, value in rows.items()},
+                level=3)
         lines.append("")
     return "\n".join(lines)
 
@@ -116,6 +127,10 @@ def forecast_seeds_summary(results: Sequence[Mapping]) -> dict:
     The runs must have scored the same files and windows with the same methods; a spread needs two."""
     if len(results) < 2:
         raise ValueError(f"a spread over seeds needs at least two runs, got {len(results)}")
+    _check_complete(results, "experiments.dynamics_forecast", lambda result: [
+        key for key in (*_FORECAST_PROTOCOL, "files", "mpjpe_mm") if key not in result] + [
+        f"mpjpe_mm.{method}.average" for method, table in result.get("mpjpe_mm", {}).items()
+        if "average" not in table] + ([f"mpjpe_mm.{_BASELINE}"] if _BASELINE not in result.get("mpjpe_mm", {}) else []))
     for index, result in enumerate(results[1:], start=2):
         differs = [key for key in _FORECAST_PROTOCOL if result[key] != results[0][key]]
         differs += ["files"] if _file_names(result) != _file_names(results[0]) else []
@@ -158,32 +173,22 @@ def forecast_seeds_markdown(summary: Mapping, runs: Sequence[str]) -> str:
              "Runs: " + ", ".join(f"`{run}`" for run in runs) + ".", "",
              f"MPJPE (mm, 24 body joints, pelvis aligned) at {summary['fps']:g} Hz after {summary['observed_frames']} "
              f"observed frames; windows every {summary['stride']} frames."]
-    lines += _horizon_table(f"Average over {groups} ({sum(summary['windows'].values())} windows)", horizons,
-                            {method: table["average"] for method, table in scores.items()},
-                            last=("mean of the horizons", summary["mean_of_horizons_mm"]))
-    lines += _horizon_table(f"Below {_BASELINE} (%, of its MPJPE in the same run)", horizons,
-                            summary["below_zero_motion_percent"])
+    cells = lambda rows, decimals=1: {  # noqa: E731
+        name: [mean_sd_cell(cell, k, decimals) for k in range(len(horizons))] for name, cell in rows.items()}
+    average = cells({method: table["average"] for method, table in scores.items()})
+    lines += markdown_table(f"Average over {groups} ({sum(summary['windows'].values())} windows)",
+                            [*horizons, "mean of the horizons"],
+                            {method: [*row, mean_sd_cell(summary["mean_of_horizons_mm"][method])]
+                             for method, row in average.items()})
+    lines += markdown_table(f"Below {_BASELINE} (%, of its MPJPE in the same run)", horizons,
+                            cells(summary["below_zero_motion_percent"]))
     if summary["differences_mm"]:
-        lines += _horizon_table("Between forecasters (mm, one's MPJPE minus the other's in the same run)", horizons,
-                                summary["differences_mm"])
+        lines += markdown_table("Between forecasters (mm, one's MPJPE minus the other's in the same run)", horizons,
+                                cells(summary["differences_mm"]))
     for group, count in summary["windows"].items():
         if count:
-            lines += _horizon_table(f"{group} ({count} windows)", horizons,
-                                    {method: table[group] for method, table in scores.items()})
+            lines += markdown_table(f"{group} ({count} windows)", horizons,
+                                    cells({method: table[group] for method, table in scores.items()}))
     if "penetration_mm" in summary:
-        lines += _horizon_table("Interpenetration: mean depth of a person's sampled vertices inside the other (mm)",
-                                horizons, summary["penetration_mm"], decimals=2)
+        lines += markdown_table(PENETRATION_TITLE, horizons, cells(summary["penetration_mm"], 2))
     return "\n".join(lines) + "\n"
-
-
-def _horizon_table(title: str, horizons: Sequence[str], rows: Mapping[str, Mapping], decimals: int = 1,
-                   last: tuple[str, Mapping[str, Mapping]] | None = None) -> list[str]:
-    """A section of :func:`forecast_seeds_markdown`: ``title``, then a row per name of ``rows`` (a ``{"mean", "sd"}``
-    cell per horizon), with ``last`` = (heading, a single cell per name) as a final column."""
-    headings = [*horizons, *([last[0]] if last else [])]
-    lines = ["", f"## {title}", "", "| method | " + " | ".join(headings) + " |", "|---|" + "---|" * len(headings)]
-    for name, cell in rows.items():
-        cells = [mean_sd_cell(cell, k, decimals) for k in range(len(horizons))]
-        cells += [mean_sd_cell(last[1][name], digits=decimals)] if last else []
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return lines
