@@ -312,18 +312,22 @@ def _run_stage(name: str, config: Any, stage: StageConfig, workdir: Path, model:
                            stage.average_decay, rest, body, state, batch, dropout_key, learning_rate(i),
                            discriminator_lr(i))
 
+    def kept(state: TrainState) -> nnx.Module:
+        """The stage's model: the moving average where the stage keeps one, else the parameters."""
+        return nnx.merge(graphdef, state.params if state.average is None else state.average, rest)
+
     def validate_state(state: TrainState) -> dict[str, float]:
-        if state.average is None:
-            return validate(nnx.merge(graphdef, state.params, rest))
-        raw = validate(nnx.merge(graphdef, state.params, rest))
-        return {**validate(nnx.merge(graphdef, state.average, rest)), **{f"raw_{k}": v for k, v in raw.items()}}
+        metrics = validate(kept(state))
+        if state.average is not None:
+            metrics |= {f"raw_{k}": v for k, v in validate(nnx.merge(graphdef, state.params, rest)).items()}
+        return metrics
 
     state = training.run_training(
         workdir / name, config, state, step, steps=stage.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
         validate=validate_state, replicated=replicated, learning_rate=learning_rate, independent_of=later, log=log,
         progress=progress, description=f"dynamics {name}")
-    return nnx.merge(graphdef, state.params if state.average is None else state.average, rest)
+    return kept(state)
 
 
 # ----------------------------------------------------------------------------------------------
