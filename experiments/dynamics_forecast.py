@@ -67,7 +67,8 @@ class Config:
     default: dynamics.ForecastTrainConfig's 500, with --pairs none)."""
     train_average_decay: float | None = None
     """With --train: validate and keep a moving average of the parameters with this decay per step, in (0, 1), 0: the
-    parameters themselves (dynamics.StageConfig.average_decay; default: dynamics.ForecastTrainConfig's, none)."""
+    parameters themselves (dynamics.StageConfig.average_decay; default: dynamics.ForecastTrainConfig's 0.995, with
+    --pairs none)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""

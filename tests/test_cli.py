@@ -73,8 +73,9 @@ def test_dynamics_forecast_help_states_the_training_defaults():
         stated = re.search(rf"{phrase} \(default: dynamics.ForecastTrainConfig's (\S+); with --pairs (\S+)\)", source)
         assert stated, phrase
         assert [float(number) for number in stated.groups()] == [getattr(single, field), getattr(pairs, field)], phrase
-    stated = re.search(r"default: dynamics.ForecastTrainConfig's (\S+), with --pairs none\)", source)
-    assert stated and float(stated.group(1)) == single.clip_norm and pairs.clip_norm is None
+    stated = re.findall(r"default: dynamics.ForecastTrainConfig's (\S+), with --pairs none\)", source)
+    assert [float(number) for number in stated] == [single.clip_norm, single.average_decay]
+    assert pairs.clip_norm is None and pairs.average_decay is None
 
 
 def test_shelf_jcsat_help_shows_the_nested_baseline_options(capsys):

@@ -503,7 +503,7 @@ def test_command_line_training_options(data_root, tmp_path):
     for option, clip_norm in ((10.0, 10.0), (0.0, None)):  # 0: unclipped
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_clip_norm=option).train_config(
             ("a.txt",), ("b.txt",)).stage.clip_norm == clip_norm
-    assert train.stage.average_decay is None  # no average by default
+    assert train.stage.average_decay == dynamics.ForecastTrainConfig(("a",), ("b",)).stage.average_decay == 0.995
     for option, decay in ((0.99, 0.99), (0.0, None)):  # 0: no average
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_average_decay=option).train_config(
             ("a.txt",), ("b.txt",)).stage.average_decay == decay
@@ -527,7 +527,7 @@ def test_command_line_training_options(data_root, tmp_path):
     assert pairs.names == tuple(dynamics.PAIR_FORECASTERS) and pairs.models == dynamics.SHIPPED_FORECASTERS / "pairs"
     train = pairs.train_config(("a+b",), ())
     assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
-    assert train.stage.clip_norm is None  # the pair forecasters' fine-tuning is unclipped
+    assert train.stage.clip_norm is None and train.stage.average_decay is None  # fine-tuned unclipped, unaveraged
     with pytest.raises(ValueError, match="--train-names must name forecasters of"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
     for change in ({"train_extrapolation": 0.3}, {"train_width": 2}):
