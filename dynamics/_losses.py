@@ -13,7 +13,7 @@ their frames), rotations as matrices (6D in, matrices compared: Zhou et al.'s re
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -37,6 +37,10 @@ PENETRATION_POINTS = 128
 class LossWeights:
     keypoints_2d: float = 60.0
     joints_3d: float = 60.0
+    joints_3d_error: Literal["squared", "distance"] = "squared"
+    """What the 3D-joint term averages: half the squared error of every coordinate (HMMR's), or every joint's
+    Euclidean distance (MPJPE, the metric the forecasts are scored by), which weighs a frame's error in proportion
+    to its size instead of its square."""
     smpl: float = 60.0
     adversarial: float = 1.0
     shape_prior: float = 0.01
@@ -52,6 +56,10 @@ class LossWeights:
     interpenetration: float = 1.0
     """Weight of ``P_t`` (Eq. 4.42, metres summed over :data:`PENETRATION_POINTS` sampled vertices) in scenes of
     several people (the thesis adds it unweighted)."""
+
+    def __post_init__(self) -> None:
+        if self.joints_3d_error not in ("squared", "distance"):
+            raise ValueError(f"joints_3d_error must be 'squared' or 'distance', got {self.joints_3d_error!r}")
 
 
 class FrameTargets(NamedTuple):
@@ -76,7 +84,8 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
     terms = {
         "smpl": weights.smpl * 0.5 * (jnp.mean((rotations - targets.rotations) ** 2)
                                       + jnp.mean((params.betas - targets.betas) ** 2)),
-        "joints_3d": weights.joints_3d * 0.5 * jnp.mean((joints - truth) ** 2),
+        "joints_3d": weights.joints_3d * (0.5 * jnp.mean((joints - truth) ** 2) if weights.joints_3d_error == "squared"
+                                          else jnp.mean(_distance(joints - truth))),
         "shape_prior": weights.shape_prior * jnp.mean(jnp.sum(params.betas ** 2, axis=-1)),
     }
     if root is not None:
@@ -86,6 +95,14 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
     if prior is not None and weights.adversarial:
         terms["adversarial"] = weights.adversarial * lsgan_generator_loss(prior(rotations, params.betas))
     return terms
+
+
+def _distance(difference: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
+    """Euclidean norms with a finite gradient at 0 (where ``jnp.linalg.norm``'s is NaN): a prediction can equal its
+    target exactly, e.g. the pelvis after alignment."""
+    squared = jnp.sum(difference ** 2, axis=-1)
+    safe = jnp.where(squared > 0, squared, 1.0)
+    return jnp.where(squared > 0, jnp.sqrt(safe), 0.0)
 
 
 def shape_consistency(betas: Float[Array, "*b T S"], weights: LossWeights) -> Array:

@@ -69,6 +69,9 @@ class Config:
     """With --train: validate and keep a moving average of the parameters with this decay per step, in (0, 1), 0: the
     parameters themselves (dynamics.StageConfig.average_decay; default: dynamics.ForecastTrainConfig's 0.995, with
     --pairs none)."""
+    train_joint_error: Literal["squared", "distance"] | None = None
+    """With --train: the 3D-joint loss on half the squared error of every coordinate, or on every joint's distance
+    (MPJPE; dynamics.LossWeights.joints_3d_error; default: dynamics.ForecastTrainConfig's squared)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""
@@ -150,6 +153,9 @@ class Config:
                                      seed=self.seed, **(PAIR_TRAIN if self.pairs else {}))
         if self.pairs:
             config = dataclasses.replace(config, start_from=str(self.start_from.resolve()))
+        if self.train_joint_error is not None:
+            config = dataclasses.replace(config, losses=dataclasses.replace(config.losses,
+                                                                            joints_3d_error=self.train_joint_error))
         if self.quick:
             return dataclasses.replace(config, **QUICK_TRAIN)
         changes = {name: value for name, value in (
