@@ -116,6 +116,8 @@ class Config:
             raise ValueError(f"--train-lr must be positive, got {self.train_lr}")
         if self.train_clip_norm is not None and not self.train_clip_norm >= 0:
             raise ValueError(f"--train-clip-norm must be >= 0 (0: no clipping), got {self.train_clip_norm}")
+        if self.train_joint_error not in (None, "squared", "distance"):
+            raise ValueError(f"--train-joint-error must be squared or distance, got {self.train_joint_error!r}")
         if self.train_average_decay is not None and not 0 <= self.train_average_decay < 1:
             raise ValueError(f"--train-average-decay must be in [0, 1) (0: no average), got {self.train_average_decay}")
         for name in ("train_steps", "train_batch", "train_width"):

@@ -1,17 +1,20 @@
 """PHD+T's data plumbing, model, losses and metrics (dynamics/_data.py, _phdt.py, _losses.py, _evaluate.py)."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from flax import nnx
+from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose
 
 import geometry
 import mocap
 from dynamics import (PHDT, TEST_MULTI_PERSON_CLIPS, TEST_SINGLE_PERSON_CLIPS, TRAIN_CLIPS, FrameTargets, Frames,
                       LossWeights, PHDTConfig, SMPLParams, crop_square, frame_losses, frame_metrics, gather_windows,
-                      square_boxes, window_starts, zero_motion)
+                      params_to_joints, square_boxes, window_starts, zero_motion)
 
 BODY = geometry.stand_in_body_model()
 CONFIG = PHDTConfig(feature_dim=128, joint_dim=128, hmr_hidden=64)
@@ -107,6 +110,36 @@ def test_losses_vanish_at_the_truth_except_the_shape_prior():
     assert terms["shape_prior"] > 0
     moved = frame_losses(BODY, true_params(frames), jnp.asarray(frames.root) + 0.1, targets, None, LossWeights())
     assert moved["keypoints_2d"] > 0.1
+
+
+def test_the_joint_distance_loss_is_the_mean_joint_distance_with_finite_gradients_at_the_truth():
+    """``joints_3d_error="distance"``: 60 x the mean over frames and joints of each joint's Euclidean distance
+    (pelvises aligned), against a NumPy reference; at the truth the term vanishes with a finite gradient (the aligned
+    pelvis is exactly on target in every frame, where a norm's gradient is NaN: it is a constant, so none flows
+    back)."""
+    frames = true_frames(np.random.default_rng(4), 3)
+    targets = FrameTargets(frames.rotations, frames.betas, frames.joints3d, None, None, None)
+    weights = dataclasses.replace(LossWeights(), joints_3d_error="distance")
+    params = true_params(frames)
+    moved = params._replace(rot6d=params.rot6d + 0.05 * jnp.asarray(np.random.default_rng(5).normal(
+        size=params.rot6d.shape)))
+    joints = np.asarray(params_to_joints(BODY, moved, jnp.zeros_like(moved.camera)))
+    truth = frames.joints3d - frames.joints3d[..., :1, :]
+    reference = 60.0 * np.mean(np.linalg.norm(joints - truth, axis=-1))
+    assert reference > 1.0  # a few centimetres off, not a vanishing case
+    terms = frame_losses(BODY, moved, None, targets, None, weights)
+    assert_allclose(terms["joints_3d"], reference, rtol=1e-9)
+    squared = frame_losses(BODY, moved, None, targets, None, LossWeights())["joints_3d"]
+    assert_allclose(squared, 30.0 * np.mean((joints - truth) ** 2), rtol=1e-9)
+    for name in ("smpl", "shape_prior"):  # only the 3D-joint term changes
+        assert_allclose(terms[name], frame_losses(BODY, moved, None, targets, None, LossWeights())[name], rtol=1e-12)
+    at_truth = lambda rot6d: frame_losses(BODY, params._replace(rot6d=rot6d), None, targets, None,  # noqa: E731
+                                          weights)["joints_3d"]
+    assert_allclose(at_truth(params.rot6d), 0.0, atol=1e-9)
+    assert np.all(np.isfinite(np.asarray(jax.grad(at_truth)(params.rot6d))))
+    # The test session's type checker refuses it first; without it, LossWeights' own check does.
+    with pytest.raises((ValueError, TypeCheckError), match="joints_3d_error"):
+        LossWeights(joints_3d_error="l1")
 
 
 def test_observation_is_causal_and_rollout_is_jittable():

@@ -507,6 +507,12 @@ def test_command_line_training_options(data_root, tmp_path):
     for option, decay in ((0.99, 0.99), (0.0, None)):  # 0: no average
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_average_decay=option).train_config(
             ("a.txt",), ("b.txt",)).stage.average_decay == decay
+    assert train.losses.joints_3d_error == dynamics.LossWeights().joints_3d_error == "squared"
+    for option in ("distance", "squared"):
+        assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_joint_error=option).train_config(
+            ("a.txt",), ("b.txt",)).losses == dataclasses.replace(dynamics.LossWeights(), joints_3d_error=option)
+    assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_joint_error="distance"
+                                    ).train_config(("a+b",), ()).losses.joints_3d_error == "distance"
     with unittest.mock.patch.object(dynamics_forecast, "train_forecasters", side_effect=KeyboardInterrupt) as train:
         with pytest.raises(KeyboardInterrupt):
             dynamics_forecast.main(dynamics_forecast.Config(out=tmp_path / "wide", data_root=data_root, train=True,
@@ -518,6 +524,7 @@ def test_command_line_training_options(data_root, tmp_path):
                              ({"train_lr": 0.0}, "--train-lr must be positive"),
                              ({"train_clip_norm": -1.0}, "--train-clip-norm must be >= 0"),
                              ({"train_average_decay": 1.0}, r"--train-average-decay must be in \[0, 1\)"),
+                             ({"train_joint_error": "l1"}, "--train-joint-error must be squared or distance"),
                              ({"train_batch": 0}, "--train-batch must be >= 1"),
                              ({"train_speeds": (1.0, 0.0)}, "--train-speeds must be positive"),
                              ({"train_names": ("GPT",)}, "--train-names must name forecasters of")):
