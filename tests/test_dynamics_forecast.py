@@ -507,7 +507,8 @@ def test_command_line_training_options(data_root, tmp_path):
     for option, decay in ((0.99, 0.99), (0.0, None)):  # 0: no average
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_average_decay=option).train_config(
             ("a.txt",), ("b.txt",)).stage.average_decay == decay
-    assert train.losses.joints_3d_error == dynamics.LossWeights().joints_3d_error == "squared"
+    assert train.losses.joints_3d_error == dynamics.ForecastTrainConfig(("a",), ("b",)).losses.joints_3d_error
+    assert train.losses.joints_3d_error == "distance" and dynamics.LossWeights().joints_3d_error == "squared"
     for option in ("distance", "squared"):
         assert dynamics_forecast.Config(out=tmp_path, data_root=data_root, train_joint_error=option).train_config(
             ("a.txt",), ("b.txt",)).losses == dataclasses.replace(dynamics.LossWeights(), joints_3d_error=option)
@@ -535,6 +536,7 @@ def test_command_line_training_options(data_root, tmp_path):
     train = pairs.train_config(("a+b",), ())
     assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
     assert train.stage.clip_norm is None and train.stage.average_decay is None  # fine-tuned unclipped, unaveraged
+    assert train.losses == dynamics.LossWeights()  # and on the squared 3D-joint error
     with pytest.raises(ValueError, match="--train-names must name forecasters of"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
     for change in ({"train_extrapolation": 0.3}, {"train_width": 2}):
