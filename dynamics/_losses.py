@@ -85,7 +85,7 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
         "smpl": weights.smpl * 0.5 * (jnp.mean((rotations - targets.rotations) ** 2)
                                       + jnp.mean((params.betas - targets.betas) ** 2)),
         "joints_3d": weights.joints_3d * (0.5 * jnp.mean((joints - truth) ** 2) if weights.joints_3d_error == "squared"
-                                          else jnp.mean(_distance(joints - truth))),
+                                          else jnp.mean(geometry.mpjpe(joints, truth))),
         "shape_prior": weights.shape_prior * jnp.mean(jnp.sum(params.betas ** 2, axis=-1)),
     }
     if root is not None:
@@ -95,15 +95,6 @@ def frame_losses(body: geometry.BodyModel, params: SMPLParams, root: Float[Array
     if prior is not None and weights.adversarial:
         terms["adversarial"] = weights.adversarial * lsgan_generator_loss(prior(rotations, params.betas))
     return terms
-
-
-def _distance(difference: Float[Array, "*b 3"]) -> Float[Array, "*b"]:
-    """Euclidean norms with a zero gradient at 0, where ``jnp.linalg.norm``'s is NaN: a decoded joint can equal its
-    target exactly (an untrained forecaster repeating an observed pose that holds still), and one NaN would reach
-    every parameter."""
-    squared = jnp.sum(difference ** 2, axis=-1)
-    safe = jnp.where(squared > 0, squared, 1.0)
-    return jnp.where(squared > 0, jnp.sqrt(safe), 0.0)
 
 
 def shape_consistency(betas: Float[Array, "*b T S"], weights: LossWeights) -> Array:
