@@ -129,5 +129,6 @@ from ._triangulate import Triangulation as Triangulation
 from ._triangulate import triangulate as triangulate
 from ._triangulate import triangulate_pixels as triangulate_pixels
 from ._triangulate import triangulate_point as triangulate_point
+from ._vectors import safe_norm as safe_norm
 
 __version__ = _version("mvmocap")

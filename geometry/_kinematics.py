@@ -22,8 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._rotations import _as_float, _broadcast_batch, _matmul, _matvec, _safe_norm
+from ._rotations import _as_float, _broadcast_batch, _matmul, _matvec
 from ._skeleton import Skeleton
+from ._vectors import safe_norm
 
 __all__ = [
     "forward_kinematics",
@@ -106,7 +107,7 @@ def bone_vectors(joints: Float[ArrayLike, "*batch joints 3"], skeleton: Skeleton
 
 def bone_lengths(joints: Float[ArrayLike, "*batch joints 3"], skeleton: Skeleton) -> Float[Array, "*batch bones"]:
     """Length of each bone in ``skeleton.bones`` order (units of ``joints``; zero-length bones have zero gradient)."""
-    return _safe_norm(bone_vectors(joints, skeleton))
+    return safe_norm(bone_vectors(joints, skeleton))
 
 
 @functools.lru_cache(maxsize=None)

@@ -21,6 +21,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._kinematics import bone_lengths
 from ._skeleton import Skeleton
+from ._vectors import safe_norm
 
 __all__ = [
     "Similarity",
@@ -65,20 +66,13 @@ def _masked_mean(values: Float[Array, "*b J"], mask: Bool[Array, "*b J"]) -> Flo
     return jnp.where(count > 0, total / jnp.maximum(count, 1), jnp.nan)
 
 
-def _joint_distances(pred: Float[Array, "*b J C"], gt: Float[Array, "*b J C"]) -> Float[Array, "*b J"]:
-    """Euclidean distances, with a zero (not NaN) gradient where pred == gt, so metrics can be losses."""
-    squared = jnp.sum((pred - gt) ** 2, axis=-1)
-    positive = squared > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
-
-
 @jax.jit
 def mpjpe(
     pred: Float[ArrayLike, "*b J 3"], gt: Float[ArrayLike, "*b J 3"], mask: Bool[ArrayLike, "*b J"] | None = None
 ) -> Float[Array, "*b"]:
     """Mean per-joint position error without alignment ("MPJPE-ab"), in the input unit."""
     pred, gt = _same_shape(pred, gt)
-    return _masked_mean(_joint_distances(pred, gt), _mask_or_ones(mask, pred.shape[:-1]))
+    return _masked_mean(safe_norm(pred - gt), _mask_or_ones(mask, pred.shape[:-1]))
 
 
 @partial(jax.jit, static_argnames=("root",))
@@ -97,7 +91,7 @@ def mpjpe_root_relative(
     mask = _mask_or_ones(mask, pred.shape[:-1])
     relative_pred = pred - pred[..., root : root + 1, :]
     relative_gt = gt - gt[..., root : root + 1, :]
-    return _masked_mean(_joint_distances(relative_pred, relative_gt), mask & mask[..., root : root + 1])
+    return _masked_mean(safe_norm(relative_pred - relative_gt), mask & mask[..., root : root + 1])
 
 
 class Similarity(NamedTuple):
@@ -172,7 +166,7 @@ def pa_mpjpe(
     pred, gt = _same_shape(pred, gt)
     mask = _mask_or_ones(mask, pred.shape[:-1])
     aligned = similarity_procrustes(pred, gt, mask).apply(pred)
-    return _masked_mean(_joint_distances(aligned, gt), mask)
+    return _masked_mean(safe_norm(aligned - gt), mask)
 
 
 @jax.jit
@@ -184,7 +178,7 @@ def pck_3d(
 ) -> Float[Array, "*b"]:
     """Fraction of joints with error strictly below ``threshold`` (input unit; 0.15 m for 3DPCK)."""
     pred, gt = _same_shape(pred, gt)
-    hit = (_joint_distances(pred, gt) < threshold).astype(pred.dtype)
+    hit = (safe_norm(pred - gt) < threshold).astype(pred.dtype)
     return _masked_mean(hit, _mask_or_ones(mask, pred.shape[:-1]))
 
 
@@ -210,7 +204,7 @@ def pck_2d(
         high = jnp.max(jnp.where(mask[..., None], gt, -jnp.inf), axis=-2)
         box_size = jnp.max(high - low, axis=-1)
     box_size = jnp.broadcast_to(jnp.asarray(box_size, pred.dtype), pred.shape[:-2])
-    hit = (_joint_distances(pred, gt) < threshold_fraction * box_size[..., None]).astype(pred.dtype)
+    hit = (safe_norm(pred - gt) < threshold_fraction * box_size[..., None]).astype(pred.dtype)
     return _masked_mean(hit, mask)
 
 
@@ -244,7 +238,7 @@ def pcp(
     if zero_is_missing:
         valid = valid & jnp.any(pred != 0, axis=-1)
     start, end = (np.array(ix, dtype=np.int32) for ix in zip(*skeleton.pcp_index))
-    errors = _joint_distances(pred, gt)
+    errors = safe_norm(pred - gt)
     mean_error = 0.5 * (errors[..., start] + errors[..., end])
     limit = alpha * jnp.linalg.norm(gt[..., start, :] - gt[..., end, :], axis=-1)
     correct = mean_error < limit if strict else mean_error <= limit
@@ -314,7 +308,7 @@ def acceleration_error(
     def second_difference(x):
         return x[..., :-2, :, :] - 2.0 * x[..., 1:-1, :, :] + x[..., 2:, :, :]
 
-    per_frame = jnp.mean(_joint_distances(second_difference(pred), second_difference(gt)), axis=-1)
+    per_frame = jnp.mean(safe_norm(second_difference(pred) - second_difference(gt)), axis=-1)
     return _masked_mean(per_frame, valid[..., :-2] & valid[..., 1:-1] & valid[..., 2:])
 
 
@@ -353,7 +347,7 @@ def joint_precision_recall(
     else:
         detected = _mask_or_ones(pred_detected, pred.shape[:-1])
     detected = detected & present
-    correct = detected & (_joint_distances(pred, gt) < threshold)
+    correct = detected & (safe_norm(pred - gt) < threshold)
     return JointHits(detected, correct, present)
 
 

@@ -21,6 +21,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ._vectors import safe_norm
+
 __all__ = [
     "axis_angle_to_matrix",
     "matrix_to_axis_angle",
@@ -80,13 +82,6 @@ def _transpose(a: Array) -> Array:
 
 def _from_rows(rows: list[list[Array]]) -> Array:
     return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
-
-
-def _safe_norm(v: Array) -> Array:
-    """Euclidean norm over the last axis with a zero (not NaN) gradient at the origin."""
-    sq = jnp.sum(v * v, axis=-1)
-    positive = sq > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1.0)), 0.0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -359,14 +354,14 @@ def rotation_between(a: Float[ArrayLike, "*#batch 3"], b: Float[ArrayLike, "*#ba
     a, b = _as_float(a), _as_float(b)
     _check_trailing(a, (3,), "a")
     _check_trailing(b, (3,), "b")
-    a, b = jnp.broadcast_arrays(a / jnp.maximum(_safe_norm(a), 1e-30)[..., None],
-                                b / jnp.maximum(_safe_norm(b), 1e-30)[..., None])
+    a, b = jnp.broadcast_arrays(a / jnp.maximum(safe_norm(a), 1e-30)[..., None],
+                                b / jnp.maximum(safe_norm(b), 1e-30)[..., None])
     cross = jnp.cross(a, b)
     sine, cosine = jnp.linalg.norm(cross, axis=-1), jnp.sum(a * b, axis=-1)
     opposite = (sine < 1e-9) & (cosine < 0)
     unit_x, unit_y = jnp.eye(3, dtype=a.dtype)[:2]
     fallback = jnp.cross(a, jnp.where(jnp.abs(a[..., :1]) < 0.9, unit_x, unit_y))
-    fallback = fallback / jnp.maximum(_safe_norm(fallback), 1e-12)[..., None]
+    fallback = fallback / jnp.maximum(safe_norm(fallback), 1e-12)[..., None]
     axis = jnp.where(opposite[..., None], fallback, cross / jnp.maximum(sine, 1e-30)[..., None])
     angle = jnp.arctan2(sine, cosine)
     # sin(angle) ~ angle near 0, so cross ~ axis * angle there: no 0 / 0.
@@ -382,7 +377,7 @@ def rotation_angle(matrix: Float[ArrayLike, "*batch 3 3"]) -> Float[Array, "*bat
     _check_trailing(m, (3, 3), "matrix")
     vee = jnp.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1)
     cos = 0.5 * (m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2] - 1.0)
-    return jnp.arctan2(0.5 * _safe_norm(vee), cos)
+    return jnp.arctan2(0.5 * safe_norm(vee), cos)
 
 
 def geodesic_distance(rotation_a: Float[ArrayLike, "*#batch 3 3"], rotation_b: Float[ArrayLike, "*#batch 3 3"]

@@ -62,13 +62,6 @@ class LossConfig:
             raise ValueError(f"min_depth must be positive (metres), got {self.min_depth}")
 
 
-def _norm(v: Float[Array, "*b d"]) -> Float[Array, "*b"]:
-    """Euclidean norm with a zero (not NaN) gradient at 0: a perfect prediction must train cleanly."""
-    squared = jnp.sum(v * v, axis=-1)
-    positive = squared > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
-
-
 def _masked_mean(values: Float[Array, "*b"], mask: Bool[Array, "*b"]) -> Float[Array, ""]:
     return jnp.sum(jnp.where(mask, values, 0.0)) / jnp.maximum(jnp.sum(mask), 1)
 
@@ -104,7 +97,7 @@ def projection_loss(
 ) -> Float[Array, ""]:
     """L_proj (Eq. 12) on projected points (:func:`project_normalised`): per view the mean 2D distance
     (image units) over the joints of the valid frames, summed over views."""
-    distance = _norm(pred_2d - target_2d)  # (B, V, N, K)
+    distance = geometry.safe_norm(pred_2d - target_2d)  # (B, V, N, K)
     mask = jnp.broadcast_to(valid[:, None, :, None], distance.shape)
     total = jnp.sum(jnp.where(mask, distance, 0.0), axis=(0, 2, 3))
     return jnp.sum(total / jnp.maximum(jnp.sum(mask, axis=(0, 2, 3)), 1))
@@ -122,8 +115,8 @@ def pcp_hinge_loss(
     (``d = 3``, metres) and, with a leading view axis in ``*b`` and ``valid`` broadcast to it, on
     projections (``d = 2``); the mean then runs over views too, so multiply by V for a per-view sum.
     """
-    error = _norm(pred - target)
-    limb = _norm(target[..., _PCP_START, :] - target[..., _PCP_END, :])
+    error = geometry.safe_norm(pred - target)
+    limb = geometry.safe_norm(target[..., _PCP_START, :] - target[..., _PCP_END, :])
     hinge = jnp.maximum(error[..., _PCP_START] + error[..., _PCP_END] - limb, 0.0)
     return _masked_mean(hinge, jnp.broadcast_to(valid[..., None], hinge.shape))
 

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from geometry import (SHELF15, STRUCTRI17, Skeleton, acceleration_error, aggregate_precision_recall, bone_lengths,
                       joint_precision_recall, mbls, mpble, mpjpe, mpjpe_root_relative, pa_mpjpe, pck_2d, pck_3d,
-                      pcp, pib, similarity_procrustes)
+                      pcp, pib, safe_norm, similarity_procrustes)
 
 SEEDS = st.integers(0, 2**32 - 1)
 FEW = settings(max_examples=25, deadline=None)
@@ -60,6 +60,16 @@ def test_metrics_have_finite_gradients_at_a_perfect_prediction():
     for loss in (mpjpe, pa_mpjpe, lambda p, g: mpjpe_root_relative(p, g, 0)):
         grad = jax.grad(lambda p, loss=loss: jnp.sum(loss(p, gt)))(gt)
         assert np.all(np.isfinite(grad))
+
+
+def test_safe_norm_is_numpys_norm_with_a_zero_gradient_at_the_zero_vector():
+    vectors = np.random.default_rng(3).normal(size=(4, 5, 3))
+    vectors[1, 2] = 0.0
+    assert_allclose(safe_norm(vectors), np.linalg.norm(vectors, axis=-1), rtol=1e-6)
+    grad = np.asarray(jax.grad(lambda v: jnp.sum(safe_norm(v)))(jnp.asarray(vectors)))
+    assert_allclose(grad[1, 2], 0.0)
+    unit = vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-30)
+    assert_allclose(grad, unit, rtol=1e-5, atol=1e-6)
 
 
 def test_mpjpe_matches_numpy():
