@@ -96,7 +96,7 @@ class ForecastTrainConfig:
     model: ForecasterConfig = FORECASTERS["JAT"]
     losses: LossWeights = LossWeights(joints_3d_error="distance")
     """The 3D-joint term on every joint's distance (MPJPE) instead of HMMR's squared error: chosen on the validation
-    files with PHD+T (two seeds, docs/dynamics.md)."""
+    files with PHD+T (two seeds), and for the pair forecasters on the training pair's tail (docs/dynamics.md)."""
     stage: StageConfig = StageConfig(steps=2000, batch_size=32, learning_rate=5e-4, warmup_steps=50, clip_norm=500.0,
                                      average_decay=0.995)
     """2000 steps of 32 windows, the gradients clipped to a global norm of 500 (the median norm logged by unclipped

@@ -28,18 +28,19 @@ from typing import Literal
 
 import geometry
 import mocap
-from dynamics import (FORECASTERS, PAIR_FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig, LossWeights,
+from dynamics import (FORECASTERS, PAIR_FORECASTERS, SHIPPED_FORECASTERS, ForecastTrainConfig,
                       StageConfig, forecast_split, load_forecaster, load_forecasters, pair_split, train_forecasters,
                       train_pair_forecasters)
 from experiments import _cli
 from experiments.dynamics_study import run_forecast_study
 
 QUICK_STRIDE = 25
-PAIR_TRAIN = dict(people=2, validation_tail=0.3, losses=LossWeights(),
+PAIR_TRAIN = dict(people=2, validation_tail=0.3,
                   stage=StageConfig(steps=300, batch_size=16, learning_rate=1e-4, warmup_steps=30),
                   checkpoint_interval=50, validation_interval=50, log_interval=10)
-"""The pair forecasters' fine-tuning (``--pairs --train``): from a trained JAT, at a fifth of its learning rate, with
-the squared 3D-joint error they were trained with (the distance was chosen for the single-person forecasters)."""
+"""The pair forecasters' fine-tuning (``--pairs --train``): from a trained JAT, at a fifth of its learning rate,
+unclipped and unaveraged, with ``ForecastTrainConfig``'s losses (the 3D-joint term on distances, chosen for the pairs
+on the training pair's validation tail on 2026-12-03: docs/dynamics.md, "The pair fine-tuning on distances")."""
 QUICK_TRAIN = dict(stage=StageConfig(steps=10, batch_size=4, learning_rate=5e-4, warmup_steps=2), speeds=(1.0,),
                    checkpoint_interval=5, validation_interval=10, log_interval=5)
 
@@ -72,8 +73,8 @@ class Config:
     --pairs none)."""
     train_joint_error: Literal["squared", "distance"] | None = None
     """With --train: the 3D-joint loss on half the squared error of every coordinate, or on every joint's distance
-    (MPJPE; dynamics.LossWeights.joints_3d_error; default: dynamics.ForecastTrainConfig's distance; with --pairs
-    squared)."""
+    (MPJPE; dynamics.LossWeights.joints_3d_error; default: dynamics.ForecastTrainConfig's distance, with --pairs
+    too)."""
     train_width: int = 1
     """With --train: every width of the forecasters' networks this many times larger (dynamics.ForecasterConfig.widened;
     2 gives PHD+T the video model's sizes)."""

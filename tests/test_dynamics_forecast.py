@@ -536,7 +536,7 @@ def test_command_line_training_options(data_root, tmp_path):
     train = pairs.train_config(("a+b",), ())
     assert (train.people, train.validation_tail, train.start_from) == (2, 0.3, str(pairs.start_from.resolve()))
     assert train.stage.clip_norm is None and train.stage.average_decay is None  # fine-tuned unclipped, unaveraged
-    assert train.losses == dynamics.LossWeights()  # and on the squared 3D-joint error
+    assert train.losses == dynamics.ForecastTrainConfig(("a",), ("b",)).losses  # on the joints' distances
     with pytest.raises(ValueError, match="--train-names must name forecasters of"):
         dynamics_forecast.Config(out=tmp_path, data_root=data_root, pairs=True, train_names=("PHD+T",))
     for change in ({"train_extrapolation": 0.3}, {"train_width": 2}):
