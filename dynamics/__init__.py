@@ -105,6 +105,8 @@ from ._train import check_crop_sizes as check_crop_sizes
 from ._train import compute_features as compute_features
 from ._train import conditioning_metrics as conditioning_metrics
 from ._train import load_trained as load_trained
+from ._train import mean_local_pose as mean_local_pose
+from ._train import mean_pose_metrics as mean_pose_metrics
 from ._train import train as train
 from ._train import train_conditioning as train_conditioning
 from ._train import BackboneConfig as BackboneConfig

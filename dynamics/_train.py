@@ -45,6 +45,7 @@ import tqdm
 from flax import nnx
 from jax.sharding import NamedSharding
 from jax.typing import ArrayLike
+from jaxtyping import Array, Float
 
 import geometry
 import training
@@ -58,7 +59,8 @@ from ._phdt import PHDT, PHDTConfig, crop_roots, params_to_joints
 from ._prior import PosePrior, lsgan_discriminator_loss
 
 __all__ = ["BackboneConfig", "ImageRegressor", "StageConfig", "TrainConfig", "cached_features", "check_crop_sizes",
-           "compute_features", "conditioning_metrics", "load_trained", "train", "train_conditioning"]
+           "compute_features", "conditioning_metrics", "load_trained", "mean_local_pose", "mean_pose_metrics", "train",
+           "train_conditioning"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -371,12 +373,13 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
 
 @partial(jax.jit, static_argnums=0)
 def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, rows: Frames) -> jax.Array:
-    """Sums over ``rows`` of :func:`conditioning_metrics`' three per-frame values (metres, metres, a ratio)."""
+    """Sums over ``rows`` of :func:`conditioning_metrics`' four per-frame values (metres, metres, metres, a ratio)."""
     model = nnx.merge(graphdef, state)
     params = model.hmr(model.backbone(_crops(rows)))
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
     root = crop_roots(params, rows.boxes, rows.K)
     return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
+                      jnp.sum(geometry.pa_mpjpe(joints, rows.joints3d)),
                       jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)),
                       jnp.sum(root[:, 2] / rows.root[:, 2])])
 
@@ -384,15 +387,49 @@ def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, 
 def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames: Frames,
                          batch_size: int = 256) -> dict[str, float]:
     """Stage 1's network on single frames (``batch_size`` at a time, one compilation per batch shape):
-    root-relative MPJPE (``mpjpe_mm``), the error of the pelvis its crop camera places (``root_mm``), and the mean
-    ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed too near the camera)."""
+    root-relative MPJPE (``mpjpe_mm``), PA-MPJPE (``pa_mpjpe_mm``), the error of the pelvis its crop camera places
+    (``root_mm``), and the mean ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed
+    too near the camera)."""
     graphdef, state = nnx.split(model)
-    total = np.zeros(3)
+    total = np.zeros(4)
     for first in range(0, frames.num_frames, batch_size):
         rows = jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]), frames)
         total += np.asarray(_conditioning_sums(graphdef, state, body, rows))
-    mpjpe, root, ratio = total / frames.num_frames
-    return {"mpjpe_mm": 1000.0 * mpjpe, "root_mm": 1000.0 * root, "depth_ratio": ratio}
+    mpjpe, pa_mpjpe, root, ratio = total / frames.num_frames
+    return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe, "root_mm": 1000.0 * root,
+            "depth_ratio": ratio}
+
+
+def mean_local_pose(rotations: Float[ArrayLike, "F 24 3 3"]) -> Float[np.ndarray, "24 3 3"]:
+    """The chordal mean of each joint's local rotation over frames (the nearest rotation to the mean matrix)."""
+    u, _, vt = np.linalg.svd(np.mean(np.asarray(rotations, np.float64), axis=0))
+    fix = np.where(np.linalg.det(u @ vt) < 0, -1.0, 1.0)  # a reflection's last axis flipped back
+    u[..., -1] *= fix[..., None]
+    return (u @ vt).astype(np.float32)
+
+
+@jax.jit
+def _mean_pose_sums(body: geometry.BodyModel, pose: Float[Array, "24 3 3"], rows: Frames) -> jax.Array:
+    rotations = jnp.broadcast_to(pose, rows.rotations.shape).at[:, 0].set(rows.rotations[:, 0])
+    joints = jax.vmap(lambda r, b: geometry.body_forward(body, r, b, jnp.zeros(3, r.dtype)).joints)(
+        rotations, rows.betas)
+    return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
+                      jnp.sum(geometry.pa_mpjpe(joints, rows.joints3d))])
+
+
+def mean_pose_metrics(body: geometry.BodyModel, pose: Float[ArrayLike, "24 3 3"], frames: Frames,
+                      batch_size: int = 256) -> dict[str, float]:
+    """A reference for :func:`conditioning_metrics`: one constant body pose (e.g. the :func:`mean_local_pose` of
+    the training frames) given each frame's true root rotation and shape, scored alike (``mpjpe_mm``,
+    ``pa_mpjpe_mm``). A conditioning network that sees nothing of the pose beyond its training mean scores about
+    this, or worse by its root rotation's error."""
+    pose = jnp.asarray(pose, jnp.float32)
+    total = np.zeros(2)
+    for first in range(0, frames.num_frames, batch_size):
+        rows = jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]), without_crops(frames))
+        total += np.asarray(_mean_pose_sums(body, pose, rows))
+    mpjpe, pa_mpjpe = total / frames.num_frames
+    return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe}
 
 
 def _training_frames(config: TrainConfig, workdir: Path, body: geometry.BodyModel, progress: bool,

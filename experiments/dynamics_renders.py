@@ -1,11 +1,14 @@
-"""How many videos to render per training clip (``DataConfig.renders``) and how many steps to train the conditioning
-stage (``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head,
-the first stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the
-root) trained for each candidate (renders, steps) with each seed, and scored per clip on fresh validation renders of
-training clips (new cameras and shapes; never a test clip).
+"""Which motion to render (``DataConfig.clips``), how many videos per training clip (``DataConfig.renders``) and how
+many steps to train the conditioning stage (``TrainConfig.image.steps``), chosen on validation: the conditioning
+stage (the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks
+give the conditioning error and the root) trained for each candidate (motion, renders, steps) with each seed, and
+scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip) and, with
+``--data-root``, on renders of held-out motion (the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``,
+which no candidate trains on).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
 trainings are resumable in OUT/train (run the same command again after a kill). Logic:
@@ -16,26 +19,38 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal
 
 import geometry
-from dynamics import VALIDATION_DATA, TrainConfig
+from dynamics import VALIDATION_DATA, TrainConfig, forecast_split
 from experiments import _cli
 from experiments.dynamics import training_configs
 from experiments.dynamics_study import run_renders_study
+
+
+MOTIONS = ("shipped", "benchmark")
+"""``shipped``: the shipped training clips (``dynamics.TRAIN_CLIPS``, about 1250 frames at 30 Hz); ``benchmark``:
+those and the CMU-Mocap benchmark's training files (``dynamics.forecast_split``, about 11 000 frames more)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Config:
     out: Path
     """Output folder."""
+    motion: tuple[Literal["shipped", "benchmark"], ...] = ("shipped",)
+    """Candidate training motion (MOTIONS); benchmark needs --data-root."""
     renders: tuple[int, ...] = (2, 4, 8)
-    """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before)."""
+    """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before). With
+    several motions, one count per motion, in order (a motion's videos per clip, not a grid)."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Training seeds per candidate."""
     validation_renders: int = 3
-    """Fresh videos per validation clip (dynamics.VALIDATION_DATA's clips and seed): the camera distances scored."""
+    """Fresh videos per validation clip (dynamics.VALIDATION_DATA's clips and seed): the camera distances scored;
+    one per held-out file."""
+    data_root: Path | None = None
+    """Folder holding cmu_expmap/ (the CMU-Mocap benchmark): the benchmark motion and the held-out validation."""
     quick: bool = False
     """A smoke run: the quick training of experiments.dynamics (a few steps, two clips), one validation render."""
     data_workers: int = 1
@@ -49,6 +64,11 @@ class Config:
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
             raise ValueError("--renders, --validation-renders and --data-workers must be >= 1")
+        if len(self.motion) > 1 and len(self.renders) != len(self.motion):
+            raise ValueError(f"--motion {' '.join(self.motion)} needs one --renders count per motion, got "
+                             f"{list(self.renders)}")
+        if "benchmark" in self.motion and self.data_root is None:
+            raise ValueError("--motion benchmark needs --data-root (the folder holding cmu_expmap/)")
         warmup = TrainConfig().image.warmup_steps
         if self.steps and min(self.steps) <= warmup:
             raise ValueError(f"--steps must exceed the stage's {warmup} warm-up steps, got {list(self.steps)}")
@@ -57,12 +77,23 @@ class Config:
 def main(config: Config) -> None:
     base, _ = training_configs("small", 0, config.quick, None)
     validation = dataclasses.replace(VALIDATION_DATA, renders=1 if config.quick else config.validation_renders)
+    held_out = None
+    if config.data_root is not None:
+        training_files, validation_files = forecast_split(config.data_root)
+        held_out = dataclasses.replace(validation, clips=validation_files[:1] if config.quick else validation_files,
+                                       renders=1)
+    clips = {"shipped": base.data.clips,
+             "benchmark": base.data.clips + (training_files[:1] if config.quick else training_files)
+             if "benchmark" in config.motion else ()}
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out:
         steps = config.steps or (base.image.steps,)
-        results = run_renders_study(out, workdir, base, config.renders, steps, config.seeds, validation,
-                                    geometry.stand_in_body_model(), log=_cli.jsonl_log(out), progress=config.progress,
-                                    data_workers=config.data_workers)
+        body = geometry.stand_in_body_model()
+        common = dict(steps=steps, seeds=config.seeds, validation=validation, body=body, held_out=held_out,
+                      log=_cli.jsonl_log(out), progress=config.progress, data_workers=config.data_workers)
+        pairs = ([(config.motion[0], count) for count in config.renders] if len(config.motion) == 1
+                 else list(zip(config.motion, config.renders)))
+        results = run_renders_study(out, workdir, base, {m: clips[m] for m in config.motion}, pairs, **common)
         report = (out / "results.md").read_text()
     print(report)
     print(f"wrote {config.out}/results.json, results.md ({results['seconds']} s)")

@@ -1,12 +1,15 @@
-"""How many videos to render per training clip, and how many steps to train the conditioning stage on them, chosen
-on validation: the conditioning stage (backbone and HMR head, :func:`dynamics.train_conditioning`) trained for each
-candidate (renders per clip, steps) with several seeds, and scored on fresh validation renders of training clips
-(:func:`dynamics.conditioning_metrics`) per clip.
+"""Which motion to render, how many videos per training clip, and how many steps to train the conditioning stage on
+them, chosen on validation: the conditioning stage (backbone and HMR head, :func:`dynamics.train_conditioning`)
+trained for each candidate (motion, renders per clip, steps) with several seeds, and scored
+(:func:`dynamics.conditioning_metrics`) per clip on fresh validation renders of training clips and, when given, on
+renders of held-out motion, beside the reference of a constant pose (:func:`dynamics.mean_pose_metrics`: each
+motion's mean training pose with the true root rotation).
 
-More renders show the networks more camera distances and body shapes for the same motion; two renders per clip
-(the default until 2026-11-28) left a depth bias on the two-person test take (docs/dynamics.md). More steps let the
-backbone, trained from scratch, see each render more often. Scored: root-relative MPJPE, the error of the pelvis the
-crop camera places, and its depth over the true depth."""
+More motion shows the networks more poses (the shipped clips hold about 1250 frames); more renders show them more
+camera distances and body shapes for the same motion; two renders per clip (the default until 2026-11-28) left a
+depth bias on the two-person test take (docs/dynamics.md). More steps let the backbone, trained from scratch, see
+each render more often. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera places,
+and its depth over the true depth."""
 
 from __future__ import annotations
 
@@ -14,14 +17,15 @@ import dataclasses
 import itertools
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import jax
 
 import geometry
 import training
-from dynamics import DataConfig, TrainConfig, build_frames, conditioning_metrics, train_conditioning
+from dynamics import (DataConfig, TrainConfig, build_frames, conditioning_metrics, mean_local_pose, mean_pose_metrics,
+                      train_conditioning)
 from experiments._stats import mean_and_sd
 
 from ._report import digits
@@ -29,39 +33,49 @@ from ._seeds import mean_sd_cell
 
 __all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
 
-_METRICS = {"mpjpe_mm": "MPJPE (mm)", "root_mm": "root (mm)", "depth_ratio": "depth / true depth"}
+_METRICS = {"mpjpe_mm": "MPJPE (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)", "root_mm": "root (mm)",
+            "depth_ratio": "depth / true depth"}
+HELD_OUT = "held-out motion"
+"""The group of :func:`run_renders_study`'s held-out validation frames."""
 
 
-def run_renders_study(out: Path, workdir: Path, base: TrainConfig, renders: Sequence[int], steps: Sequence[int],
-                      seeds: Sequence[int], validation: DataConfig, body: geometry.BodyModel, *,
+def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapping[str, tuple[str, ...]],
+                      data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
+                      validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
                       log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
-    """Train ``base`` (its data and model) with each number of ``renders`` per clip, each number of conditioning
-    ``steps`` and each of ``seeds`` in ``workdir/renders<R>_steps<N>_seed<S>`` (resumable; one render cache in
-    ``workdir/data_cache``), score each on ``validation`` per clip and write ``out/results.json`` and
-    ``results.md``; returns the results."""
+    """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
+    training clips, and the videos rendered per clip), each number of conditioning ``steps`` and each of ``seeds`` in
+    ``workdir/<motion>_renders<R>_steps<N>_seed<S>`` (resumable; one render cache in ``workdir/data_cache``), score
+    each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no candidate trains on) as a
+    whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
     cache_dir = (workdir / "data_cache").resolve()
+    groups = {}
     validation_frames = build_frames(validation, body, cache_dir, progress, data_workers)
-    runs = []
-    for count, stage_steps, seed in itertools.product(renders, steps, seeds):
-        config = dataclasses.replace(base, data=dataclasses.replace(base.data, renders=count),
-                                     image=dataclasses.replace(base.image, steps=stage_steps),
+    for index, clip in enumerate(validation.clips):
+        groups[clip] = jax.tree.map(lambda column, rows=validation_frames.clip == index: column[rows], validation_frames)
+    groups["all"] = validation_frames
+    if held_out is not None:
+        groups[HELD_OUT] = build_frames(held_out, body, cache_dir, progress, data_workers)
+    runs, references = [], {}
+    for (motion, count), stage_steps, seed in itertools.product(data, steps, seeds):
+        frames_config = dataclasses.replace(base.data, clips=motions[motion], renders=count)
+        config = dataclasses.replace(base, data=frames_config, image=dataclasses.replace(base.image, steps=stage_steps),
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
-        candidate = {"renders": count, "steps": stage_steps, "seed": seed}
-        model = train_conditioning(config, workdir / f"renders{count}_steps{stage_steps}_seed{seed}", body,
+        candidate = {"motion": motion, "renders": count, "steps": stage_steps, "seed": seed}
+        model = train_conditioning(config, workdir / f"{motion}_renders{count}_steps{stage_steps}_seed{seed}", body,
                                    resume=True, log=lambda record, candidate=candidate: log({**candidate, **record}),
                                    progress=progress, data_workers=data_workers)
-        per_clip = {}
-        for index, clip in enumerate(validation.clips):
-            rows = validation_frames.clip == index
-            per_clip[clip] = conditioning_metrics(body, model, jax.tree.map(lambda column: column[rows],
-                                                                           validation_frames))
-        per_clip["all"] = conditioning_metrics(body, model, validation_frames)
-        runs.append({**candidate, "metrics": per_clip})
-        log({**candidate, "validation": per_clip})
-    results = {"config": {"base": base, "renders": list(renders), "steps": list(steps), "seeds": list(seeds),
-                          "validation": validation},
-               "runs": runs, "summary": renders_summary(runs),
+        metrics = {group: conditioning_metrics(body, model, frames) for group, frames in groups.items()}
+        runs.append({**candidate, "metrics": metrics})
+        log({**candidate, "validation": metrics})
+        if motion not in references:  # the training frames' mean pose: the renders change the views, not the poses
+            pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
+            references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
+    results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
+                          "steps": list(steps),
+                          "seeds": list(seeds), "validation": validation, "held_out": held_out},
+               "runs": runs, "summary": renders_summary(runs), "mean_pose": references,
                "seconds": round(time.perf_counter() - started, 1)}
     results = training.to_jsonable(results)
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
@@ -70,13 +84,14 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, renders: Sequ
 
 
 def _candidate_name(run: dict) -> str:
-    """A candidate's row label: its renders per clip and conditioning steps."""
-    return f"renders {run['renders']}, steps {run['steps']}"
+    """A candidate's row label: its motion, renders per clip and conditioning steps."""
+    return f"{run['motion']} motion, renders {run['renders']}, steps {run['steps']}"
 
 
 def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
-    """Per candidate (:func:`_candidate_name`) and validation clip: each metric's mean and sample sd (0 for one seed)
-    over the candidate's runs (``{"renders", "steps", "seed", "metrics": {clip: {metric: value}}}``)."""
+    """Per candidate (:func:`_candidate_name`) and validation group: each metric's mean and sample sd (0 for one
+    seed) over the candidate's runs (``{"motion", "renders", "steps", "seed", "metrics": {group: {metric:
+    value}}}``)."""
     summary = {}
     for name in dict.fromkeys(map(_candidate_name, runs)):
         mine = [run["metrics"] for run in runs if _candidate_name(run) == name]
@@ -87,17 +102,27 @@ def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
 
 
 def renders_markdown(results: dict) -> str:
-    """One table per validation clip (and all frames): each candidate's metrics, mean ± sd over the seeds."""
+    """One table per validation group: each candidate's metrics, mean ± sd over the seeds, and each motion's
+    mean-pose reference."""
     config, validation = results["config"], results["config"]["validation"]
-    lines = ["# Renders per training clip and conditioning steps, chosen on validation", "",
+    held_out = config.get("held_out")
+    lines = ["# Motion, renders per training clip and conditioning steps, chosen on validation", "",
              f"The conditioning stage trained for each candidate with seeds {config['seeds']} (mean ± sample "
              f"sd over them), scored on {validation['renders']} fresh render(s) of each of {validation['clips']} "
-             f"(seed {validation['seed']}).", ""]
-    for clip in next(iter(results["summary"].values())):
-        lines += [f"## {clip}", "", "| candidate | " + " | ".join(_METRICS.values()) + " |",
+             f"(seed {validation['seed']})"
+             + ("" if held_out is None else f" and on {held_out['renders']} render(s) of each of "
+                f"{len(held_out['clips'])} files of held-out motion ('{HELD_OUT}', seed {held_out['seed']})")
+             + ". Reference rows: a constant pose, the motion's mean training pose, given the true root rotation and "
+               "shape.", ""]
+    for group in next(iter(results["summary"].values())):
+        lines += [f"## {group}", "", "| candidate | " + " | ".join(_METRICS.values()) + " |",
                   "|---|" + "---|" * len(_METRICS)]
-        for name, per_clip in results["summary"].items():
-            lines.append(f"| {name} | " + " | ".join(mean_sd_cell(per_clip[clip][metric], digits=digits(metric))
+        for name, per_group in results["summary"].items():
+            lines.append(f"| {name} | " + " | ".join(mean_sd_cell(per_group[group][metric], digits=digits(metric))
                                                       for metric in _METRICS) + " |")
+        for motion, reference in results.get("mean_pose", {}).items():
+            lines.append(f"| mean pose of the {motion} motion (reference) | "
+                         + " | ".join(f"{reference[group][metric]:.1f}" if metric in reference[group] else ""
+                                      for metric in _METRICS) + " |")
         lines.append("")
     return "\n".join(lines)
