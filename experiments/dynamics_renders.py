@@ -28,17 +28,14 @@ from experiments.dynamics import training_configs
 from experiments.dynamics_study import run_renders_study
 
 
-MOTIONS = ("shipped", "benchmark")
-"""``shipped``: the shipped training clips (``dynamics.TRAIN_CLIPS``, about 1250 frames at 30 Hz); ``benchmark``:
-those and the CMU-Mocap benchmark's training files (``dynamics.forecast_split``, about 11 000 frames more)."""
-
-
 @dataclasses.dataclass(frozen=True)
 class Config:
     out: Path
     """Output folder."""
     motion: tuple[Literal["shipped", "benchmark"], ...] = ("shipped",)
-    """Candidate training motion (MOTIONS); benchmark needs --data-root."""
+    """Candidate training motion: shipped, the shipped training clips (dynamics.TRAIN_CLIPS, about 1250 frames at 30
+    Hz); benchmark, those and the CMU-Mocap benchmark's training files (dynamics.forecast_split, about 11 000 frames
+    more; needs --data-root)."""
     renders: tuple[int, ...] = (2, 4, 8)
     """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before). With
     several motions, one count per motion, in order (a motion's videos per clip, not a grid)."""

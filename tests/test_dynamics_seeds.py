@@ -164,53 +164,78 @@ def test_the_command_takes_forecast_runs_and_refuses_a_mix(tmp_path, capsys):
 
 
 def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_bad_options(capsys):
-    runs = [{"renders": count, "steps": steps, "seed": seed,
-             "metrics": {"walk": {"mpjpe_mm": 100.0 + count + seed - steps / 1000, "root_mm": 10.0 * seed,
-                                  "depth_ratio": 0.9 + seed / 100}}}
+    runs = [{"motion": "shipped", "renders": count, "steps": steps, "seed": seed,
+             "metrics": {"walk": {"mpjpe_mm": 100.0 + count + seed - steps / 1000, "pa_mpjpe_mm": 50.0,
+                                  "root_mm": 10.0 * seed, "depth_ratio": 0.9 + seed / 100}}}
             for count, steps in ((2, 2000), (8, 2000), (8, 8000)) for seed in (0, 1, 2)]
     summary = renders_summary(runs)
-    assert list(summary) == ["renders 2, steps 2000", "renders 8, steps 2000", "renders 8, steps 8000"]
-    assert summary["renders 8, steps 2000"]["walk"]["mpjpe_mm"] == pytest.approx({"mean": 107.0, "sd": 1.0})
-    assert summary["renders 8, steps 8000"]["walk"]["mpjpe_mm"] == pytest.approx({"mean": 101.0, "sd": 1.0})
+    assert list(summary) == ["shipped motion, renders 2, steps 2000", "shipped motion, renders 8, steps 2000",
+                             "shipped motion, renders 8, steps 8000"]
+    assert summary["shipped motion, renders 8, steps 2000"]["walk"]["mpjpe_mm"] == pytest.approx(
+        {"mean": 107.0, "sd": 1.0})
+    assert summary["shipped motion, renders 8, steps 8000"]["walk"]["mpjpe_mm"] == pytest.approx(
+        {"mean": 101.0, "sd": 1.0})
     config = {"seeds": [0, 1, 2], "validation": {"renders": 3, "clips": ["walk"], "seed": 1000}}
-    assert ("| renders 8, steps 8000 | 101.0 ± 1.0 | 10.0 ± 10.0 | 0.910 ± 0.010 |"
-            in renders_markdown({"config": config, "summary": summary}))
-    assert renders_summary(runs[:1])["renders 2, steps 2000"]["walk"]["root_mm"] == {"mean": 0.0, "sd": 0.0}  # one seed
+    markdown = renders_markdown({"config": config, "summary": summary,
+                                 "mean_pose": {"shipped": {"walk": {"mpjpe_mm": 90.04, "pa_mpjpe_mm": 80.0}}}})
+    assert "| shipped motion, renders 8, steps 8000 | 101.0 ± 1.0 | 50.0 ± 0.0 | 10.0 ± 10.0 | 0.910 ± 0.010 |" in markdown
+    assert "| mean pose of the shipped motion (reference) | 90.0 | 80.0 |  |  |" in markdown
+    assert renders_summary(runs[:1])["shipped motion, renders 2, steps 2000"]["walk"]["root_mm"] == {
+        "mean": 0.0, "sd": 0.0}  # one seed
     for argv, message in ((["--renders", "2", "2"], "--renders needs distinct values"),
                           (["--renders", "0", "2"], "must be >= 1"), (["--seeds"], "--seeds needs distinct values"),
                           (["--steps"], "--steps needs distinct values"),
-                          (["--steps", "2000", "100"], "--steps must exceed the stage's 100 warm-up steps")):
+                          (["--steps", "2000", "100"], "--steps must exceed the stage's 100 warm-up steps"),
+                          (["--motion", "benchmark"], "--motion benchmark needs --data-root"),
+                          (["--motion", "shipped", "benchmark", "--renders", "16", "4", "2", "--data-root", "d"],
+                           "--motion shipped benchmark needs one --renders count per motion, got [16, 4, 2]")):
         with pytest.raises(SystemExit):
             _cli.parse(dynamics_renders.Config, ["--out", "x", *argv], prog="dynamics_renders")
         assert message in capsys.readouterr().err
 
 
 def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_folder(tmp_path, monkeypatch):
-    """The loop over (renders, steps, seed), with the training and the metrics replaced by fakes (tested in
-    test_dynamics_train.py): each run's config carries its candidate, each validation clip is scored on its rows."""
-    trained = []
+    """The loop over (motion and renders, steps, seed), with the training and the metrics replaced by fakes (tested
+    in test_dynamics_train.py): each run's config carries its candidate, each validation group is scored on its
+    rows, the held-out frames as one group, and each motion's mean pose is taken from its own training frames."""
+    trained, posed = [], []
 
     def fake_train(config, workdir, body, *, resume, log, progress, data_workers):
         assert resume and Path(config.cache_dir) == tmp_path / "train" / "data_cache"
-        trained.append((config.data.renders, config.image.steps, config.seed, Path(workdir).name))
+        trained.append((config.data.clips, config.data.renders, config.image.steps, config.seed, Path(workdir).name))
         log({"step": config.image.steps})
         return config.data.renders + config.image.steps / 1000 + config.seed / 10  # the "model": its candidate
 
-    clips = np.array([0, 0, 1])
-    monkeypatch.setattr(_renders, "build_frames", lambda *args: dynamics.Frames(*[clips] * len(dynamics.Frames._fields)))
+    def fake_frames(config, *args):
+        clips = np.array([0, 0, 1] if config.clips == validation.clips else [0, 1, 2, 3, 4])
+        return dynamics.Frames(*[clips] * len(dynamics.Frames._fields))
+
+    monkeypatch.setattr(_renders, "build_frames", fake_frames)
     monkeypatch.setattr(_renders, "train_conditioning", fake_train)
     monkeypatch.setattr(_renders, "conditioning_metrics", lambda body, model, frames: {
-        "mpjpe_mm": model + len(frames.clip), "root_mm": 0.0, "depth_ratio": 1.0})
+        "mpjpe_mm": model + len(frames.clip), "pa_mpjpe_mm": 0.0, "root_mm": 0.0, "depth_ratio": 1.0})
+    monkeypatch.setattr(_renders, "mean_local_pose", lambda rotations: posed.append(len(rotations)) or len(rotations))
+    monkeypatch.setattr(_renders, "mean_pose_metrics", lambda body, pose, frames: {"mpjpe_mm": pose})
     base, _ = training_configs("small", 0, False, None)
     validation = dataclasses.replace(dynamics.VALIDATION_DATA, renders=1)
+    held_out = dataclasses.replace(validation, clips=("02_05_punch",))
     records = []
-    results = run_renders_study(tmp_path, tmp_path / "train", base, (8, 16), (2000, 8000), (0, 1), validation,
-                                body=None, log=records.append, progress=False, data_workers=1)
-    assert trained == [(r, n, s, f"renders{r}_steps{n}_seed{s}") for r in (8, 16) for n in (2000, 8000) for s in (0, 1)]
-    assert {"renders": 16, "steps": 8000, "seed": 1, "step": 8000} in records
+    motions = {"shipped": ("02_01_walk",), "benchmark": ("02_01_walk", "02_03_run")}
+    results = run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8), ("benchmark", 16)),
+                                (2000, 8000), (0, 1), validation, body=None, held_out=held_out, log=records.append,
+                                progress=False, data_workers=1)
+    assert trained == [(motions[m], r, n, s, f"{m}_renders{r}_steps{n}_seed{s}")
+                       for m, r in (("shipped", 8), ("benchmark", 16)) for n in (2000, 8000) for s in (0, 1)]
+    assert {"motion": "benchmark", "renders": 16, "steps": 8000, "seed": 1, "step": 8000} in records
     walk, salsa = validation.clips
     last = results["runs"][-1]
     assert last["metrics"][walk]["mpjpe_mm"] == pytest.approx(24.1 + 2) and last["metrics"]["all"]["mpjpe_mm"] == 27.1
-    assert results["summary"]["renders 16, steps 8000"][salsa]["mpjpe_mm"]["mean"] == pytest.approx(25.05)
+    assert last["metrics"][_renders.HELD_OUT]["mpjpe_mm"] == pytest.approx(24.1 + 5)
+    assert results["summary"]["benchmark motion, renders 16, steps 8000"][salsa]["mpjpe_mm"]["mean"] == pytest.approx(
+        25.05)
+    assert posed == [5, 5] and list(results["mean_pose"]) == ["shipped", "benchmark"]  # once per motion
     assert json.loads((tmp_path / "results.json").read_text())["config"]["steps"] == [2000, 8000]
-    assert "| renders 8, steps 2000 |" in (tmp_path / "results.md").read_text()
+    assert "| shipped motion, renders 8, steps 2000 |" in (tmp_path / "results.md").read_text()
+    assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()
+
+

@@ -191,6 +191,38 @@ def test_the_conditioning_stage_alone_is_train_s_first_and_its_metrics_match_a_p
     assert metrics["mpjpe_mm"] == pytest.approx(1000 * mpjpe, rel=1e-4)
     assert metrics["root_mm"] == pytest.approx(1000 * np.linalg.norm(roots - rows.root, axis=-1).mean(), rel=1e-4)
     assert metrics["depth_ratio"] == pytest.approx(np.mean(roots[:, 2] / rows.root[:, 2]), rel=1e-4)
+    pa = [geometry.pa_mpjpe(one, truth) for one, truth in zip(joints, rows.joints3d)]  # geometry's: checked by SciPy
+    assert metrics["pa_mpjpe_mm"] == pytest.approx(1000 * np.mean(pa), rel=1e-4)
+    assert metrics["pa_mpjpe_mm"] < metrics["mpjpe_mm"]
+
+
+def test_the_mean_local_pose_is_scipy_s_chordal_mean_of_each_joint_s_rotations():
+    from scipy.spatial.transform import Rotation
+    rng = np.random.default_rng(0)
+    spread = Rotation.from_rotvec(rng.normal(0.0, 0.6, (50 * 24, 3))).as_matrix().reshape(50, 24, 3, 3)
+    rotations = Rotation.from_rotvec(rng.normal(0.0, 1.0, (24, 3))).as_matrix() @ spread
+    pose = dynamics.mean_local_pose(rotations.astype(np.float32))
+    expected = np.stack([Rotation.from_matrix(rotations[:, j]).mean().as_matrix() for j in range(24)])
+    assert_allclose(pose, expected, atol=2e-5)
+    assert_allclose(np.linalg.det(pose), 1.0, atol=1e-5)
+    half_turns = np.stack([np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])
+    assert_allclose(np.linalg.det(dynamics.mean_local_pose(np.repeat(half_turns[:, None], 24, axis=1))), 1.0, atol=1e-6)  # mean: -I / 3
+
+
+def test_the_mean_pose_reference_is_zero_on_its_own_pose_and_matches_a_per_frame_reference(cache_dir):
+    rows = dynamics.build_frames(VALIDATION, BODY, cache_dir, progress=False)
+    pose = dynamics.mean_local_pose(rows.rotations)
+    metrics = dynamics.mean_pose_metrics(BODY, pose, rows, batch_size=7)  # batches of 7 and a remainder
+    posed = np.broadcast_to(pose, rows.rotations.shape).copy()
+    posed[:, 0] = rows.rotations[:, 0]  # the true root rotation
+    joints = np.stack([geometry.body_forward(BODY, r, b, np.zeros(3)).joints for r, b in zip(posed, rows.betas)])
+    relative = lambda j: j - j[:, :1]  # noqa: E731
+    assert metrics["mpjpe_mm"] == pytest.approx(
+        1000 * np.linalg.norm(relative(joints) - relative(rows.joints3d), axis=-1).mean(), rel=1e-4)
+    assert metrics["pa_mpjpe_mm"] == pytest.approx(
+        1000 * np.mean([geometry.pa_mpjpe(j, t) for j, t in zip(joints, rows.joints3d)]), rel=1e-4)
+    still = rows._replace(rotations=posed, joints3d=joints.astype(np.float32))
+    assert dynamics.mean_pose_metrics(BODY, pose, still)["mpjpe_mm"] < 1e-3
 
 
 def test_resume_after_a_kill_in_a_later_stage_is_bit_identical(full_run, tmp_path):
