@@ -8,7 +8,8 @@ which no candidate trains on).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
-    python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 --data-root ../shared/data --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 \\
+        --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
 trainings are resumable in OUT/train (run the same command again after a kill). Logic:
@@ -56,7 +57,8 @@ class Config:
     """Progress bars."""
 
     def __post_init__(self) -> None:
-        for option, values in (("--renders", self.renders), ("--steps", self.steps), ("--seeds", self.seeds)):
+        for option, values in (("--motion", self.motion), ("--renders", self.renders), ("--steps", self.steps),
+                               ("--seeds", self.seeds)):
             if values is not None and (not values or len(set(values)) != len(values)):
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
@@ -74,23 +76,20 @@ class Config:
 def main(config: Config) -> None:
     base, _ = training_configs("small", 0, config.quick, None)
     validation = dataclasses.replace(VALIDATION_DATA, renders=1 if config.quick else config.validation_renders)
-    held_out = None
+    held_out, motions = None, {"shipped": base.data.clips}
     if config.data_root is not None:
         training_files, validation_files = forecast_split(config.data_root)
         held_out = dataclasses.replace(validation, clips=validation_files[:1] if config.quick else validation_files,
                                        renders=1)
-    clips = {"shipped": base.data.clips,
-             "benchmark": base.data.clips + (training_files[:1] if config.quick else training_files)
-             if "benchmark" in config.motion else ()}
+        motions["benchmark"] = base.data.clips + (training_files[:1] if config.quick else training_files)
+    candidates = ([(config.motion[0], count) for count in config.renders] if len(config.motion) == 1
+                  else list(zip(config.motion, config.renders)))  # one renders count per motion
     workdir = config.out / "train"  # in place, not staged: a killed run resumes from its checkpoints
     with _cli.run_folder(config.out, keep=("train",)) as out:
-        steps = config.steps or (base.image.steps,)
-        body = geometry.stand_in_body_model()
-        common = dict(steps=steps, seeds=config.seeds, validation=validation, body=body, held_out=held_out,
-                      log=_cli.jsonl_log(out), progress=config.progress, data_workers=config.data_workers)
-        pairs = ([(config.motion[0], count) for count in config.renders] if len(config.motion) == 1
-                 else list(zip(config.motion, config.renders)))
-        results = run_renders_study(out, workdir, base, {m: clips[m] for m in config.motion}, pairs, **common)
+        results = run_renders_study(out, workdir, base, {m: motions[m] for m in config.motion}, candidates,
+                                    config.steps or (base.image.steps,), config.seeds, validation,
+                                    geometry.stand_in_body_model(), held_out=held_out, log=_cli.jsonl_log(out),
+                                    progress=config.progress, data_workers=config.data_workers)
         report = (out / "results.md").read_text()
     print(report)
     print(f"wrote {config.out}/results.json, results.md ({results['seconds']} s)")

@@ -187,6 +187,7 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
                           (["--steps"], "--steps needs distinct values"),
                           (["--steps", "2000", "100"], "--steps must exceed the stage's 100 warm-up steps"),
                           (["--motion", "benchmark"], "--motion benchmark needs --data-root"),
+                          (["--motion", "shipped", "shipped"], "--motion needs distinct values"),
                           (["--motion", "shipped", "benchmark", "--renders", "16", "4", "2", "--data-root", "d"],
                            "--motion shipped benchmark needs one --renders count per motion, got [16, 4, 2]")):
         with pytest.raises(SystemExit):
