@@ -378,10 +378,23 @@ def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, 
     params = model.hmr(model.backbone(_crops(rows)))
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
     root = crop_roots(params, rows.boxes, rows.K)
+    return jnp.concatenate([_pose_error_sums(joints, rows), jnp.stack([
+        jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)), jnp.sum(root[:, 2] / rows.root[:, 2])])])
+
+
+def _pose_error_sums(joints: Float[Array, "B 24 3"], rows: Frames) -> Float[Array, "2"]:
+    """Sums over ``rows`` of root-relative MPJPE and PA-MPJPE (metres)."""
     return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
-                      jnp.sum(geometry.pa_mpjpe(joints, rows.joints3d)),
-                      jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)),
-                      jnp.sum(root[:, 2] / rows.root[:, 2])])
+                      jnp.sum(geometry.pa_mpjpe(joints, rows.joints3d))])
+
+
+def _batched_means(sums: Callable[[Frames], jax.Array], frames: Frames, batch_size: int) -> np.ndarray:
+    """The per-frame means of ``sums(rows)`` over ``frames``, ``batch_size`` rows at a time."""
+    total = 0.0
+    for first in range(0, frames.num_frames, batch_size):
+        total = total + np.asarray(sums(jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]),
+                                                     frames)), np.float64)  # summed in float64
+    return total / frames.num_frames
 
 
 def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames: Frames,
@@ -391,11 +404,8 @@ def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames
     (``root_mm``), and the mean ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed
     too near the camera)."""
     graphdef, state = nnx.split(model)
-    total = np.zeros(4)
-    for first in range(0, frames.num_frames, batch_size):
-        rows = jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]), frames)
-        total += np.asarray(_conditioning_sums(graphdef, state, body, rows))
-    mpjpe, pa_mpjpe, root, ratio = total / frames.num_frames
+    mpjpe, pa_mpjpe, root, ratio = _batched_means(partial(_conditioning_sums, graphdef, state, body), frames,
+                                                  batch_size)
     return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe, "root_mm": 1000.0 * root,
             "depth_ratio": ratio}
 
@@ -413,8 +423,7 @@ def _mean_pose_sums(body: geometry.BodyModel, pose: Float[Array, "24 3 3"], rows
     rotations = jnp.broadcast_to(pose, rows.rotations.shape).at[:, 0].set(rows.rotations[:, 0])
     joints = jax.vmap(lambda r, b: geometry.body_forward(body, r, b, jnp.zeros(3, r.dtype)).joints)(
         rotations, rows.betas)
-    return jnp.stack([jnp.sum(geometry.mpjpe_root_relative(joints, rows.joints3d, 0)),
-                      jnp.sum(geometry.pa_mpjpe(joints, rows.joints3d))])
+    return _pose_error_sums(joints, rows)
 
 
 def mean_pose_metrics(body: geometry.BodyModel, pose: Float[ArrayLike, "24 3 3"], frames: Frames,
@@ -423,12 +432,8 @@ def mean_pose_metrics(body: geometry.BodyModel, pose: Float[ArrayLike, "24 3 3"]
     the training frames) given each frame's true root rotation and shape, scored alike (``mpjpe_mm``,
     ``pa_mpjpe_mm``). A conditioning network that sees nothing of the pose beyond its training mean scores about
     this, or worse by its root rotation's error."""
-    pose = jnp.asarray(pose, jnp.float32)
-    total = np.zeros(2)
-    for first in range(0, frames.num_frames, batch_size):
-        rows = jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]), without_crops(frames))
-        total += np.asarray(_mean_pose_sums(body, pose, rows))
-    mpjpe, pa_mpjpe = total / frames.num_frames
+    mpjpe, pa_mpjpe = _batched_means(partial(_mean_pose_sums, body, jnp.asarray(pose, jnp.float32)),
+                                     without_crops(frames), batch_size)
     return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe}
 
 

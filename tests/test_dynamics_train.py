@@ -213,6 +213,7 @@ def test_the_mean_pose_reference_is_zero_on_its_own_pose_and_matches_a_per_frame
     rows = dynamics.build_frames(VALIDATION, BODY, cache_dir, progress=False)
     pose = dynamics.mean_local_pose(rows.rotations)
     metrics = dynamics.mean_pose_metrics(BODY, pose, rows, batch_size=7)  # batches of 7 and a remainder
+    assert all(isinstance(value, np.float64) for value in metrics.values())  # summed in float64; JSON takes them
     posed = np.broadcast_to(pose, rows.rotations.shape).copy()
     posed[:, 0] = rows.rotations[:, 0]  # the true root rotation
     joints = np.stack([geometry.body_forward(BODY, r, b, np.zeros(3)).joints for r, b in zip(posed, rows.betas)])

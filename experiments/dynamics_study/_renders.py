@@ -73,8 +73,7 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
             pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
             references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
     results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
-                          "steps": list(steps),
-                          "seeds": list(seeds), "validation": validation, "held_out": held_out},
+                          "steps": list(steps), "seeds": list(seeds), "validation": validation, "held_out": held_out},
                "runs": runs, "summary": renders_summary(runs), "mean_pose": references,
                "seconds": round(time.perf_counter() - started, 1)}
     results = training.to_jsonable(results)
