@@ -390,6 +390,8 @@ def _pose_error_sums(joints: Float[Array, "B 24 3"], rows: Frames) -> Float[Arra
 
 def _batched_means(sums: Callable[[Frames], jax.Array], frames: Frames, batch_size: int) -> np.ndarray:
     """The per-frame means of ``sums(rows)`` over ``frames``, ``batch_size`` rows at a time."""
+    if frames.num_frames == 0:
+        raise ValueError("no frames to score: the frames are empty")
     total = 0.0
     for first in range(0, frames.num_frames, batch_size):
         total = total + np.asarray(sums(jax.tree.map(lambda column: jnp.asarray(column[first: first + batch_size]),
@@ -412,7 +414,10 @@ def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames
 
 def mean_local_pose(rotations: Float[ArrayLike, "F 24 3 3"]) -> Float[np.ndarray, "24 3 3"]:
     """The chordal mean of each joint's local rotation over frames (the nearest rotation to the mean matrix)."""
-    u, _, vt = np.linalg.svd(np.mean(np.asarray(rotations, np.float64), axis=0))
+    rotations = np.asarray(rotations, np.float64)
+    if rotations.ndim != 4 or rotations.shape[1:] != (24, 3, 3) or len(rotations) == 0:
+        raise ValueError(f"mean_local_pose takes rotations of shape (frames >= 1, 24, 3, 3), got {rotations.shape}")
+    u, _, vt = np.linalg.svd(np.mean(rotations, axis=0))
     fix = np.where(np.linalg.det(u @ vt) < 0, -1.0, 1.0)  # a reflection's last axis flipped back
     u[..., -1] *= fix[..., None]
     return (u @ vt).astype(np.float32)

@@ -207,6 +207,8 @@ def test_the_mean_local_pose_is_scipy_s_chordal_mean_of_each_joint_s_rotations()
     assert_allclose(np.linalg.det(pose), 1.0, atol=1e-5)
     half_turns = np.stack([np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])])
     assert_allclose(np.linalg.det(dynamics.mean_local_pose(np.repeat(half_turns[:, None], 24, axis=1))), 1.0, atol=1e-6)  # mean: -I / 3
+    with pytest.raises(ValueError, match=r"rotations of shape \(frames >= 1, 24, 3, 3\), got \(0, 24, 3, 3\)"):
+        dynamics.mean_local_pose(np.zeros((0, 24, 3, 3)))  # no frames: NaN before
 
 
 def test_the_mean_pose_reference_is_zero_on_its_own_pose_and_matches_a_per_frame_reference(cache_dir):
@@ -224,6 +226,8 @@ def test_the_mean_pose_reference_is_zero_on_its_own_pose_and_matches_a_per_frame
         1000 * np.mean([geometry.pa_mpjpe(j, t) for j, t in zip(joints, rows.joints3d)]), rel=1e-4)
     still = rows._replace(rotations=posed, joints3d=joints.astype(np.float32))
     assert dynamics.mean_pose_metrics(BODY, pose, still)["mpjpe_mm"] < 1e-3
+    with pytest.raises(ValueError, match="no frames to score"):
+        dynamics.mean_pose_metrics(BODY, pose, jax.tree.map(lambda column: column[:0], rows))
 
 
 def test_resume_after_a_kill_in_a_later_stage_is_bit_identical(full_run, tmp_path):
