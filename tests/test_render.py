@@ -94,6 +94,18 @@ def test_covered_pixels_counts_what_rasterise_draws():
         covered_pixels(points, faces + 1, K, SIZE)
 
 
+def test_pixel_centres_on_an_edge_belong_to_the_triangle_in_either_winding():
+    """A square with corners on pixel centres (2, 2) and (6, 6), cut along its diagonal: each half, drawn alone in
+    either winding, covers the 15 centres on or inside its three edges, and the two halves cover the square's 25
+    (the diagonal's 5 in both)."""
+    corners = np.array([[2.0, 2.0, 1.0], [6.0, 2.0, 1.0], [6.0, 6.0, 1.0], [2.0, 6.0, 1.0]])  # z = 1: (x, y) is the pixel
+    halves = np.array([[0, 1, 2], [0, 2, 3]])
+    for half in (*halves, *halves[:, ::-1]):
+        assert covered_pixels(corners, half[None], np.eye(3), (10, 10)) == 15, half
+    raster = rasterise(corners, halves, np.eye(3), (10, 10))
+    assert_array_equal(np.argwhere(raster.face >= 0), np.argwhere(np.pad(np.ones((5, 5)), ((2, 3), (2, 3)))))
+
+
 @pytest.fixture(scope="module")
 def two_people():
     rest = np.broadcast_to(np.eye(3), (24, 3, 3))
