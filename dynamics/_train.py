@@ -373,13 +373,16 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
 
 @partial(jax.jit, static_argnums=0)
 def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, rows: Frames) -> jax.Array:
-    """Sums over ``rows`` of :func:`conditioning_metrics`' four per-frame values (metres, metres, metres, a ratio)."""
+    """Sums over ``rows`` of :func:`conditioning_metrics`' five per-frame values (metres, metres, metres, a ratio,
+    degrees)."""
     model = nnx.merge(graphdef, state)
     params = model.hmr(model.backbone(_crops(rows)))
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
     root = crop_roots(params, rows.boxes, rows.K)
+    orientation = geometry.geodesic_distance(geometry.rotation_6d_to_matrix(params.rot6d[:, 0]), rows.rotations[:, 0])
     return jnp.concatenate([_pose_error_sums(joints, rows), jnp.stack([
-        jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)), jnp.sum(root[:, 2] / rows.root[:, 2])])])
+        jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)), jnp.sum(root[:, 2] / rows.root[:, 2]),
+        jnp.sum(jnp.degrees(orientation))])])
 
 
 def _pose_error_sums(joints: Float[Array, "B 24 3"], rows: Frames) -> Float[Array, "2"]:
@@ -403,13 +406,15 @@ def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames
                          batch_size: int = 256) -> dict[str, float]:
     """Stage 1's network on single frames (``batch_size`` at a time, one compilation per batch shape):
     root-relative MPJPE (``mpjpe_mm``), PA-MPJPE (``pa_mpjpe_mm``), the error of the pelvis its crop camera places
-    (``root_mm``), and the mean ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed
-    too near the camera)."""
+    (``root_mm``), the mean ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed
+    too near the camera), and the angle between the regressed and the true root rotation in the camera frame
+    (``orientation_deg``, the body's facing and lean: the part of the MPJPE a constant pose with the true root
+    rotation, :func:`mean_pose_metrics`, does not pay)."""
     graphdef, state = nnx.split(model)
-    mpjpe, pa_mpjpe, root, ratio = _batched_means(partial(_conditioning_sums, graphdef, state, body), frames,
-                                                  batch_size)
+    mpjpe, pa_mpjpe, root, ratio, orientation = _batched_means(
+        partial(_conditioning_sums, graphdef, state, body), frames, batch_size)
     return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe, "root_mm": 1000.0 * root,
-            "depth_ratio": ratio}
+            "depth_ratio": ratio, "orientation_deg": orientation}
 
 
 def mean_local_pose(rotations: Float[ArrayLike, "F 24 3 3"]) -> Float[np.ndarray, "24 3 3"]:

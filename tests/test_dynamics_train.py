@@ -194,6 +194,10 @@ def test_the_conditioning_stage_alone_is_train_s_first_and_its_metrics_match_a_p
     pa = [geometry.pa_mpjpe(one, truth) for one, truth in zip(joints, rows.joints3d)]  # geometry's: checked by SciPy
     assert metrics["pa_mpjpe_mm"] == pytest.approx(1000 * np.mean(pa), rel=1e-4)
     assert metrics["pa_mpjpe_mm"] < metrics["mpjpe_mm"]
+    from scipy.spatial.transform import Rotation
+    regressed = np.asarray(geometry.rotation_6d_to_matrix(params.rot6d[:, 0]), np.float64)
+    angles = Rotation.from_matrix(np.swapaxes(regressed, -1, -2) @ rows.rotations[:, 0]).magnitude()
+    assert metrics["orientation_deg"] == pytest.approx(np.degrees(angles).mean(), rel=1e-4)
 
 
 def test_the_mean_local_pose_is_scipy_s_chordal_mean_of_each_joint_s_rotations():

@@ -34,7 +34,7 @@ from ._seeds import mean_sd_cell
 __all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
 
 _METRICS = {"mpjpe_mm": "MPJPE (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)", "root_mm": "root (mm)",
-            "depth_ratio": "depth / true depth"}
+            "depth_ratio": "depth / true depth", "orientation_deg": "root rotation (deg)"}
 HELD_OUT = "held-out motion"
 """The group of :func:`run_renders_study`'s held-out validation frames."""
 
