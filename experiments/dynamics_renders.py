@@ -1,7 +1,8 @@
-"""Which motion to render (``DataConfig.clips``), how many videos per training clip (``DataConfig.renders``) and how
-many steps to train the conditioning stage (``TrainConfig.image.steps``), chosen on validation: the conditioning
-stage (the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks
-give the conditioning error and the root) trained for each candidate (motion, renders, steps) with each seed, and
+"""Which motion to render (``DataConfig.clips``), how many videos per training clip (``DataConfig.renders``), how to
+mirror them (``DataConfig.redraw_flips``) and how many steps to train the conditioning stage
+(``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head, the first
+stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the root) trained
+for each candidate (motion, renders, mirrors, steps) with each seed, and
 scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip) and, with
 ``--data-root``, on renders of held-out motion (the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``,
 which no candidate trains on).
@@ -10,6 +11,8 @@ which no candidate trains on).
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 \\
         --data-root ../shared/data --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_flips --renders 16 --flips pixels redraw \\
+        --seeds 0 1 --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
 trainings are resumable in OUT/train (run the same command again after a kill). Logic:
@@ -26,7 +29,7 @@ import geometry
 from dynamics import VALIDATION_DATA, TrainConfig, forecast_split
 from experiments import _cli
 from experiments.dynamics import training_configs
-from experiments.dynamics_study import run_renders_study
+from experiments.dynamics_study import Flips, run_renders_study
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +43,10 @@ class Config:
     renders: tuple[int, ...] = (2, 4, 8)
     """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before). With
     several motions, one count per motion, in order (a motion's videos per clip, not a grid)."""
+    flips: tuple[Flips, ...] = ("pixels",)
+    """Candidate ways of making the mirrored training variants: pixels, the rendered frames mirrored (the shipped
+    models'); redraw, the mirrored people rendered anew, so that the renders' left and right part colours follow the
+    mirrored labels (dynamics.DataConfig.redraw_flips)."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -57,8 +64,8 @@ class Config:
     """Progress bars."""
 
     def __post_init__(self) -> None:
-        for option, values in (("--motion", self.motion), ("--renders", self.renders), ("--steps", self.steps),
-                               ("--seeds", self.seeds)):
+        for option, values in (("--motion", self.motion), ("--renders", self.renders), ("--flips", self.flips),
+                               ("--steps", self.steps), ("--seeds", self.seeds)):
             if values is not None and (not values or len(set(values)) != len(values)):
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
@@ -88,7 +95,8 @@ def main(config: Config) -> None:
     with _cli.run_folder(config.out, keep=("train",)) as out:
         results = run_renders_study(out, workdir, base, {m: motions[m] for m in config.motion}, candidates,
                                     config.steps or (base.image.steps,), config.seeds, validation,
-                                    geometry.stand_in_body_model(), held_out=held_out, log=_cli.jsonl_log(out),
+                                    geometry.stand_in_body_model(), held_out=held_out, flips=config.flips,
+                                    log=_cli.jsonl_log(out),
                                     progress=config.progress, data_workers=config.data_workers)
         report = (out / "results.md").read_text()
     print(report)

@@ -315,12 +315,18 @@ def mirror_pose(rotations: Float[np.ndarray, "*b J 3 3"], joints: Float[np.ndarr
     return _MIRROR_X @ rotations[..., mirror, :, :] @ _MIRROR_X, joints[..., mirror, :] @ _MIRROR_X
 
 
-def flip_video(video: Video, model: BodyModel) -> Video:
+def flip_video(video: Video, model: BodyModel, redraw: bool = False) -> Video:
     """The horizontal mirror of ``video``: what a mirrored world, with every person's left and right swapped
     (:attr:`~geometry.Skeleton.mirror`), looks like. Pixels ``x -> W - 1 - x``; camera-frame points
     ``(x, y, z) -> (-x, y, z)``; rotations ``M R M`` with ``M = diag(-1, 1, 1)``; the camera mirrored to match
     (``K``'s principal point and skew, ``R -> M R M``, ``t -> M t``). For a left-right symmetric model,
     ``body_forward`` of the flipped parameters gives the flipped joints. Flipping twice is the identity.
+
+    ``redraw=False`` mirrors the pixels, which is the mirror of real footage. A render of
+    :func:`~mocap.render_people` marks left and right by its part colours, and mirrored pixels keep each colour on
+    its part while the labels swap: a mirrored person facing the camera then looks like an unmirrored one facing
+    away. ``redraw=True`` renders the flipped people anew (the same silhouettes for a symmetric model, the part
+    colours following the swapped labels), at the cost of a second rendering.
     """
     width = video.frames.shape[2]
     mirror = list(model.skeleton.mirror)
@@ -337,9 +343,22 @@ def flip_video(video: Video, model: BodyModel) -> Video:
     camera = Camera.create(K, _MIRROR_X @ np.asarray(video.camera.R, np.float64) @ _MIRROR_X,
                            np.asarray(video.camera.t, np.float64) @ _MIRROR_X, video.camera.dist,
                            video.camera.image_size)
-    return Video(np.ascontiguousarray(video.frames[:, :, ::-1]), camera,
-                 rotations, video.betas.copy(), translation, joints3d, joints2d,
+    frames = (_redraw(model, rotations, video.betas, translation, K, video.frames.shape[1:3]) if redraw
+              else np.ascontiguousarray(video.frames[:, :, ::-1]))
+    return Video(frames, camera, rotations, video.betas.copy(), translation, joints3d, joints2d,
                  np.stack([width - 1 - x1, y0, width - 1 - x0, y1], axis=-1), video.visibility.copy())
+
+
+def _redraw(model: BodyModel, rotations: Float[np.ndarray, "P T 24 3 3"], betas: Float[np.ndarray, "P S"],
+            translation: Float[np.ndarray, "P T 3"], K: Float[np.ndarray, "T 3 3"],
+            shape: tuple[int, int]) -> UInt8[np.ndarray, "T H W 3"]:
+    """The frames of people given by camera-frame parameters, seen by cameras ``K`` at the origin."""
+    height, width = shape
+    vertices = np.stack([_pose_person(model, rotations[p], betas[p], translation[p])[0]
+                         for p in range(len(betas))])  # (P, T, V, 3), camera frame
+    return np.stack([render_people(Camera(K[t], np.eye(3), np.zeros(3), np.zeros(5), np.array([width, height], float)),
+                                   list(vertices[:, t]), model, (width, height)).image
+                     for t in range(len(K))])
 
 
 def _moving_average(values: Float[np.ndarray, "*tracks T C"], window: int) -> Float[np.ndarray, "*tracks T C"]:

@@ -19,6 +19,7 @@ import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Literal
 
 import jax
 
@@ -31,10 +32,12 @@ from experiments._stats import mean_and_sd
 from ._report import digits
 from ._seeds import mean_sd_cell
 
-__all__ = ["renders_markdown", "renders_summary", "run_renders_study"]
+__all__ = ["Flips", "renders_markdown", "renders_summary", "run_renders_study"]
 
 _METRICS = {"mpjpe_mm": "MPJPE (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)", "root_mm": "root (mm)",
             "depth_ratio": "depth / true depth", "orientation_deg": "root rotation (deg)"}
+Flips = Literal["pixels", "redraw"]
+"""How the mirrored training variants are made: their pixels mirrored, or the mirrored people rendered anew."""
 HELD_OUT = "held-out motion"
 """The group of :func:`run_renders_study`'s held-out validation frames."""
 
@@ -42,10 +45,13 @@ HELD_OUT = "held-out motion"
 def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapping[str, tuple[str, ...]],
                       data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
-                      log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
+                      flips: Sequence[Flips] = ("pixels",), log: Callable[[dict], None], progress: bool,
+                      data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
-    training clips, and the videos rendered per clip), each number of conditioning ``steps`` and each of ``seeds`` in
-    ``workdir/<motion>_renders<R>_steps<N>_seed<S>`` (resumable; one render cache in ``workdir/data_cache``), score
+    training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
+    ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`), each number of conditioning ``steps`` and each of ``seeds``
+    in ``workdir/<motion>_renders<R>[_redraw]_steps<N>_seed<S>`` (resumable; one render cache in
+    ``workdir/data_cache``), score
     each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no candidate trains on) as a
     whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
@@ -58,22 +64,25 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
     if held_out is not None:
         groups[HELD_OUT] = build_frames(held_out, body, cache_dir, progress, data_workers)
     runs, references = [], {}
-    for (motion, count), stage_steps, seed in itertools.product(data, steps, seeds):
-        frames_config = dataclasses.replace(base.data, clips=motions[motion], renders=count)
+    for (motion, count), flip, stage_steps, seed in itertools.product(data, flips, steps, seeds):
+        frames_config = dataclasses.replace(base.data, clips=motions[motion], renders=count,
+                                            redraw_flips=flip == "redraw")
         config = dataclasses.replace(base, data=frames_config, image=dataclasses.replace(base.image, steps=stage_steps),
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
-        candidate = {"motion": motion, "renders": count, "steps": stage_steps, "seed": seed}
-        model = train_conditioning(config, workdir / f"{motion}_renders{count}_steps{stage_steps}_seed{seed}", body,
-                                   resume=True, log=lambda record, candidate=candidate: log({**candidate, **record}),
+        candidate = {"motion": motion, "renders": count, "flips": flip, "steps": stage_steps, "seed": seed}
+        redrawn = "_redraw" if flip == "redraw" else ""
+        model = train_conditioning(config, workdir / f"{motion}_renders{count}{redrawn}_steps{stage_steps}_seed{seed}",
+                                   body, resume=True, log=lambda record, candidate=candidate: log({**candidate, **record}),
                                    progress=progress, data_workers=data_workers)
         metrics = {group: conditioning_metrics(body, model, frames) for group, frames in groups.items()}
         runs.append({**candidate, "metrics": metrics})
         log({**candidate, "validation": metrics})
-        if motion not in references:  # the training frames' mean pose: the renders change the views, not the poses
+        if motion not in references:  # the training frames' mean pose: renders and mirrors change the views, not the poses
             pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
             references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
     results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
-                          "steps": list(steps), "seeds": list(seeds), "validation": validation, "held_out": held_out},
+                          "flips": list(flips), "steps": list(steps), "seeds": list(seeds), "validation": validation,
+                          "held_out": held_out},
                "runs": runs, "summary": renders_summary(runs), "mean_pose": references,
                "seconds": round(time.perf_counter() - started, 1)}
     results = training.to_jsonable(results)
@@ -83,8 +92,9 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
 
 
 def _candidate_name(run: dict) -> str:
-    """A candidate's row label: its motion, renders per clip and conditioning steps."""
-    return f"{run['motion']} motion, renders {run['renders']}, steps {run['steps']}"
+    """A candidate's row label: its motion, renders per clip (and redrawn mirrors) and conditioning steps."""
+    redrawn = ", mirrors redrawn" if run.get("flips") == "redraw" else ""
+    return f"{run['motion']} motion, renders {run['renders']}{redrawn}, steps {run['steps']}"
 
 
 def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
