@@ -5,7 +5,8 @@ Each clip is retargeted to the body model with random shapes (:func:`mocap.retar
 ``renders`` times with a slowly moving camera (:func:`mocap.synthesise_video`). Every rendered video gives
 ``augmented_epochs`` variants, as the thesis caches eight augmented epochs (Sect. 5.2): its boxes jittered like a
 noisy tracker's (:func:`mocap.jitter_boxes`) and every second variant mirrored (:func:`mocap.flip_video`, ground
-truth mirrored with it; its pixels, or with ``redraw_flips`` a render of the mirrored people). A person's frames in one variant form a *track*.
+truth mirrored with it; its pixels, or with ``redraw_flips`` a render of the mirrored people). A person's frames in
+one variant form a *track*.
 
 A track's crops are square: side ``box_margin * max(w, h)`` of its (jittered) tight box, centred on it, resized
 to ``crop_size`` pixels. That square is the track's box everywhere else too: the crop camera of the HMR head is
@@ -212,7 +213,8 @@ def _render(config: DataConfig, clip_index: int, render: int, model: geometry.Bo
     betas = rng.normal(0.0, config.shape_std, (clip.num_people, model.num_shapes))
     video = mocap.synthesise_video(mocap.retarget_clip(clip, model, betas), model, config.video, rng)
     rows = []
-    flipped = mocap.flip_video(video, model, config.redraw_flips) if config.flip and config.augmented_epochs > 1 else None
+    mirrors = config.flip and config.augmented_epochs > 1
+    flipped = mocap.flip_video(video, model, config.redraw_flips) if mirrors else None
     for epoch in range(config.augmented_epochs):
         shown = flipped if flipped is not None and epoch % 2 == 1 else video
         rows.append(video_tracks(shown, config, rng, first_track=first_track + epoch * clip.num_people,

@@ -70,6 +70,20 @@ def test_renders_do_not_depend_on_the_order_they_are_made_in(monkeypatch):
         np.testing.assert_array_equal(column, expected)
 
 
+def test_redrawn_flips_change_only_the_mirrored_variants_crops():
+    """DataConfig.redraw_flips renders the mirrored variant anew (mocap.flip_video's redraw, tested in
+    test_video.py): the same rows and ground truth, the same crops of the unmirrored variant, other crops of the
+    mirrored one."""
+    pixels = dynamics.build_frames(DATA, BODY, progress=False)
+    redrawn = dynamics.build_frames(dataclasses.replace(DATA, redraw_flips=True), BODY, progress=False)
+    for field, a, b in zip(dynamics.Frames._fields, redrawn, pixels):
+        if field != "crops":
+            np.testing.assert_array_equal(a, b, err_msg=field)
+    mirrored = pixels.video == 1
+    assert mirrored.any() and (~mirrored).any()
+    np.testing.assert_array_equal(redrawn.crops[~mirrored], pixels.crops[~mirrored])
+    assert np.mean(redrawn.crops[mirrored] != pixels.crops[mirrored]) > 0.01
+
 def _records(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 

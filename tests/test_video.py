@@ -1,5 +1,6 @@
 """Retargeting the shipped clips to the body model (mocap/_retarget.py) and the synthetic monocular video
-(mocap/_video.py): bone directions, grounding, camera-frame ground truth, the horizontal flip, box jitter."""
+(mocap/_video.py): bone directions, grounding, camera-frame ground truth, the horizontal flip (mirrored pixels or
+redrawn), box jitter."""
 
 import dataclasses
 
@@ -308,6 +309,34 @@ def test_flipped_parameters_pose_the_flipped_people(salsa_video):
     centre = lambda v, t: -np.asarray(v.camera.R[t]).T @ np.asarray(v.camera.t[t])  # noqa: E731
     assert_allclose(centre(flipped, 4), centre(video, 4) * [-1.0, 1.0, 1.0], atol=1e-12)
 
+
+def _blue_over_red(video, side: str) -> float:
+    """Over the frames and people, the fraction of one side's limb joints (``l_`` or ``r_``) whose pixel is bluer
+    than it is red, less the fraction redder than blue: the renders colour the left limbs bluish, the right reddish."""
+    limbs = [j for j, name in enumerate(SMPL24.joints) if name.startswith(side)
+             and name[2:] in ("shoulder", "elbow", "wrist", "knee", "ankle")]
+    x, y = np.moveaxis(np.round(video.joints2d[:, :, limbs]).astype(int), -1, 0)  # (P, T, joints)
+    frame = np.broadcast_to(np.arange(video.frames.shape[0])[None, :, None], x.shape)
+    pixels = video.frames[frame, y, x].astype(int)
+    return float(np.mean(np.sign(pixels[..., 2] - pixels[..., 0])))
+
+
+def test_a_redrawn_flip_has_the_mirrored_silhouettes_and_the_labels_colours(salsa_video):
+    """Mirrored pixels keep each part colour on its side while the labels swap; redrawn, the mirrored people carry
+    their own labels' colours: left limbs as bluish as in the original video, the same silhouettes as the mirrored
+    pixels (a symmetric body), and the same ground truth."""
+    video = salsa_video
+    pixels, redrawn = flip_video(video, MODEL), flip_video(video, MODEL, redraw=True)
+    for field, a, b in zip(video._fields, redrawn, pixels):
+        if field not in ("frames", "camera"):
+            assert_array_equal(a, b, err_msg=field)
+    background = video.frames[0, 0, 0]
+    assert np.mean(np.any(redrawn.frames != background, -1) != np.any(pixels.frames != background, -1)) < 0.001
+    for side in ("l_", "r_"):
+        assert abs(_blue_over_red(redrawn, side) - _blue_over_red(video, side)) < 0.15, side
+    assert _blue_over_red(video, "l_") - _blue_over_red(video, "r_") > 0.5  # the statistic tells the sides apart
+    assert _blue_over_red(pixels, "l_") - _blue_over_red(pixels, "r_") < -0.5  # and the mirrored pixels swap them
+    assert np.mean(flip_video(redrawn, MODEL, redraw=True).frames != video.frames) < 1e-4  # twice: the original
 
 def test_jitter_boxes_is_bounded_smooth_and_deterministic():
     rng = np.random.default_rng(0)

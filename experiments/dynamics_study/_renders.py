@@ -72,12 +72,12 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
         candidate = {"motion": motion, "renders": count, "flips": flip, "steps": stage_steps, "seed": seed}
         redrawn = "_redraw" if flip == "redraw" else ""
         model = train_conditioning(config, workdir / f"{motion}_renders{count}{redrawn}_steps{stage_steps}_seed{seed}",
-                                   body, resume=True, log=lambda record, candidate=candidate: log({**candidate, **record}),
-                                   progress=progress, data_workers=data_workers)
+                                   body, resume=True, progress=progress, data_workers=data_workers,
+                                   log=lambda record, candidate=candidate: log({**candidate, **record}))
         metrics = {group: conditioning_metrics(body, model, frames) for group, frames in groups.items()}
         runs.append({**candidate, "metrics": metrics})
         log({**candidate, "validation": metrics})
-        if motion not in references:  # the training frames' mean pose: renders and mirrors change the views, not the poses
+        if motion not in references:  # the training frames' mean pose: renders and mirrors change views, not poses
             pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
             references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
     results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
