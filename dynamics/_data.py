@@ -68,10 +68,11 @@ class DataConfig:
     """Jitter the boxes (training); False: the tight boxes (testing)."""
     flip: bool = True
     """Mirror every second variant (training)."""
-    redraw_flips: bool = False
+    redraw_flips: bool = True
     """Render the mirrored variants anew (:func:`mocap.flip_video`'s ``redraw``), so that the renders' part colours
     follow the swapped left and right; False mirrors the pixels, which keeps each colour on its side of the image and
-    so makes a mirrored person facing the camera look like one facing away."""
+    so makes a mirrored person facing the camera look like one facing away (the models shipped before 2026-12-07;
+    True won on validation by ``python -m experiments.dynamics_renders --flips pixels redraw``: docs/dynamics.md)."""
     crop_size: int = 64
     """Crop side, pixels (the thesis: 224 for ResNet-50; this CPU-sized backbone takes 64)."""
     box_margin: float = 1.2

@@ -12,7 +12,7 @@ which no candidate trains on).
     python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 \\
         --data-root ../shared/data --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_flips --renders 16 --flips pixels redraw \\
-        --seeds 0 1 --data-root ../shared/data --data-workers 2
+        --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
 trainings are resumable in OUT/train (run the same command again after a kill). Logic:
@@ -43,10 +43,10 @@ class Config:
     renders: tuple[int, ...] = (2, 4, 8)
     """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before). With
     several motions, one count per motion, in order (a motion's videos per clip, not a grid)."""
-    flips: tuple[Flips, ...] = ("pixels",)
-    """Candidate ways of making the mirrored training variants: pixels, the rendered frames mirrored (the shipped
-    models'); redraw, the mirrored people rendered anew, so that the renders' left and right part colours follow the
-    mirrored labels (dynamics.DataConfig.redraw_flips)."""
+    flips: tuple[Flips, ...] = ("redraw",)
+    """Candidate ways of making the mirrored training variants: redraw, the mirrored people rendered anew, so that the
+    renders' left and right part colours follow the mirrored labels (the recipe since 2026-12-07,
+    dynamics.DataConfig.redraw_flips); pixels, the rendered frames mirrored (the recipe before)."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)

@@ -231,7 +231,7 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
                                 (2000, 8000), (0, 1), validation, body=None, held_out=held_out,
                                 flips=("pixels", "redraw"), log=records.append, progress=False, data_workers=1)
     assert trained == [(motions[m], r, f == "redraw", n, s,
-                        f"{m}_renders{r}{'_redraw' * (f == 'redraw')}_steps{n}_seed{s}")
+                        f"{m}_renders{r}_{f}_steps{n}_seed{s}")
                        for m, r in (("shipped", 8), ("benchmark", 16)) for f in ("pixels", "redraw")
                        for n in (2000, 8000) for s in (0, 1)]
     assert {"motion": "benchmark", "renders": 16, "flips": "redraw", "steps": 8000, "seed": 1, "step": 8000} in records
@@ -244,7 +244,7 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     assert posed == [5, 5] and list(results["mean_pose"]) == ["shipped", "benchmark"]  # once per motion
     assert json.loads((tmp_path / "results.json").read_text())["config"]["steps"] == [2000, 8000]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["flips"] == ["pixels", "redraw"]
-    assert "| shipped motion, renders 8, steps 2000 |" in (tmp_path / "results.md").read_text()
+    assert "| shipped motion, renders 8, pixels mirrored, steps 2000 |" in (tmp_path / "results.md").read_text()
     assert "| shipped motion, renders 8, mirrors redrawn, steps 2000 |" in (tmp_path / "results.md").read_text()
     assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()
 

@@ -74,8 +74,8 @@ def test_redrawn_flips_change_only_the_mirrored_variants_crops():
     """DataConfig.redraw_flips renders the mirrored variant anew (mocap.flip_video's redraw, tested in
     test_video.py): the same rows and ground truth, the same crops of the unmirrored variant, other crops of the
     mirrored one."""
-    pixels = dynamics.build_frames(DATA, BODY, progress=False)
-    redrawn = dynamics.build_frames(dataclasses.replace(DATA, redraw_flips=True), BODY, progress=False)
+    pixels, redrawn = (dynamics.build_frames(dataclasses.replace(DATA, redraw_flips=redraw), BODY, progress=False)
+                       for redraw in (False, True))
     for field, a, b in zip(dynamics.Frames._fields, redrawn, pixels):
         if field != "crops":
             np.testing.assert_array_equal(a, b, err_msg=field)

@@ -45,12 +45,12 @@ HELD_OUT = "held-out motion"
 def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapping[str, tuple[str, ...]],
                       data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
-                      flips: Sequence[Flips] = ("pixels",), log: Callable[[dict], None], progress: bool,
+                      flips: Sequence[Flips] = ("redraw",), log: Callable[[dict], None], progress: bool,
                       data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
     training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
     ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`), each number of conditioning ``steps`` and each of ``seeds``
-    in ``workdir/<motion>_renders<R>[_redraw]_steps<N>_seed<S>`` (resumable; one render cache in
+    in ``workdir/<motion>_renders<R>_<flips>_steps<N>_seed<S>`` (resumable; one render cache in
     ``workdir/data_cache``), score
     each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no candidate trains on) as a
     whole, and write ``out/results.json`` and ``results.md``; returns the results."""
@@ -70,8 +70,7 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
         config = dataclasses.replace(base, data=frames_config, image=dataclasses.replace(base.image, steps=stage_steps),
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
         candidate = {"motion": motion, "renders": count, "flips": flip, "steps": stage_steps, "seed": seed}
-        redrawn = "_redraw" if flip == "redraw" else ""
-        model = train_conditioning(config, workdir / f"{motion}_renders{count}{redrawn}_steps{stage_steps}_seed{seed}",
+        model = train_conditioning(config, workdir / f"{motion}_renders{count}_{flip}_steps{stage_steps}_seed{seed}",
                                    body, resume=True, progress=progress, data_workers=data_workers,
                                    log=lambda record, candidate=candidate: log({**candidate, **record}))
         metrics = {group: conditioning_metrics(body, model, frames) for group, frames in groups.items()}
@@ -92,9 +91,9 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
 
 
 def _candidate_name(run: dict) -> str:
-    """A candidate's row label: its motion, renders per clip (and redrawn mirrors) and conditioning steps."""
-    redrawn = ", mirrors redrawn" if run.get("flips") == "redraw" else ""
-    return f"{run['motion']} motion, renders {run['renders']}{redrawn}, steps {run['steps']}"
+    """A candidate's row label: its motion, renders per clip, mirrors (where the run says) and conditioning steps."""
+    mirrors = {"pixels": ", pixels mirrored", "redraw": ", mirrors redrawn"}.get(run.get("flips"), "")
+    return f"{run['motion']} motion, renders {run['renders']}{mirrors}, steps {run['steps']}"
 
 
 def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
