@@ -2,10 +2,9 @@
 mirror them (``DataConfig.redraw_flips``) and how many steps to train the conditioning stage
 (``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head, the first
 stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the root) trained
-for each candidate (motion, renders, mirrors, steps) with each seed, and
-scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip) and, with
-``--data-root``, on renders of held-out motion (the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``,
-which no candidate trains on).
+for each candidate (motion, renders, mirrors, steps) with each seed, and scored per clip on fresh validation renders
+of training clips (new cameras and shapes; never a test clip) and, with ``--data-root``, on renders of held-out motion
+(the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``, which no candidate trains on).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
@@ -96,8 +95,8 @@ def main(config: Config) -> None:
         results = run_renders_study(out, workdir, base, {m: motions[m] for m in config.motion}, candidates,
                                     config.steps or (base.image.steps,), config.seeds, validation,
                                     geometry.stand_in_body_model(), held_out=held_out, flips=config.flips,
-                                    log=_cli.jsonl_log(out),
-                                    progress=config.progress, data_workers=config.data_workers)
+                                    log=_cli.jsonl_log(out), progress=config.progress,
+                                    data_workers=config.data_workers)
         report = (out / "results.md").read_text()
     print(report)
     print(f"wrote {config.out}/results.json, results.md ({results['seconds']} s)")

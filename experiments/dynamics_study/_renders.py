@@ -1,6 +1,7 @@
-"""Which motion to render, how many videos per training clip, and how many steps to train the conditioning stage on
-them, chosen on validation: the conditioning stage (backbone and HMR head, :func:`dynamics.train_conditioning`)
-trained for each candidate (motion, renders per clip, steps) with several seeds, and scored
+"""Which motion to render, how many videos per training clip, how to mirror them, and how many steps to train the
+conditioning stage on them, chosen on validation: the conditioning stage (backbone and HMR head,
+:func:`dynamics.train_conditioning`) trained for each candidate (motion, renders per clip, mirrors, steps) with several
+seeds, and scored
 (:func:`dynamics.conditioning_metrics`) per clip on fresh validation renders of training clips and, when given, on
 renders of held-out motion, beside the reference of a constant pose (:func:`dynamics.mean_pose_metrics`: each
 motion's mean training pose with the true root rotation).
@@ -8,8 +9,9 @@ motion's mean training pose with the true root rotation).
 More motion shows the networks more poses (the shipped clips hold about 1250 frames); more renders show them more
 camera distances and body shapes for the same motion; two renders per clip (the default until 2026-11-28) left a
 depth bias on the two-person test take (docs/dynamics.md). More steps let the backbone, trained from scratch, see
-each render more often. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera places,
-and its depth over the true depth."""
+each render more often. Mirrors drawn anew keep the renders' left and right part colours on the left and right
+limbs, which mirrored pixels swap. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera
+places, its depth over the true depth, and the root rotation's error."""
 
 from __future__ import annotations
 
@@ -51,9 +53,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
     training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
     ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`), each number of conditioning ``steps`` and each of ``seeds``
     in ``workdir/<motion>_renders<R>_<flips>_steps<N>_seed<S>`` (resumable; one render cache in
-    ``workdir/data_cache``), score
-    each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no candidate trains on) as a
-    whole, and write ``out/results.json`` and ``results.md``; returns the results."""
+    ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion
+    no candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
     cache_dir = (workdir / "data_cache").resolve()
     groups = {}
