@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
-from flex import DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, SKELETON_MODELS, load_models
+from flex import (CONFIGS, DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, SKELETON_MODELS,
+                  load_models)
 
 QUICK = dict(sequences=4, rigs=("h36m_ring",), perturbation_draws=2)
 """What --quick changes (where the option is not given another value)."""
@@ -46,6 +47,9 @@ class Config:
     the duplicate-joint ablation); the others come from --model-dir."""
     train_steps: int | None = None
     """Training steps per model with --train (default 1500, --quick 100)."""
+    train_model_config: Literal[tuple(sorted(CONFIGS))] = "small"  # type: ignore[valid-type]
+    """With --train: the models' configuration (flex.CONFIGS): small, the shipped CPU models (1.3 M generator
+    parameters); paper, Table 6's (about 84 M, for a GPU); cpu, a tiny one for smoke runs."""
     train_batch: int = 16
     """With --train: windows per training step."""
     train_pool: int | None = None
@@ -110,7 +114,8 @@ def main(config: Config) -> None:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
             models |= train_models(config.out / "models", steps, seed=experiment.seed, names=config.train_names,
                                    extra_clips=config.train_clips(), batch_size=config.train_batch,
-                                   pool_size=config.train_pool, data_workers=config.data_workers, log=log)
+                                   pool_size=config.train_pool, model_config=config.train_model_config,
+                                   data_workers=config.data_workers, log=log)
         results = run_experiment(experiment, models, out, log=log)
         report = (out / "results.md").read_text()
     print(report)

@@ -51,7 +51,7 @@ def test_help_explains_every_option(capsys):
     text = capsys.readouterr().out
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames",
                    "--train-names", "--train-expmap", "--test-expmap", "--rigs", "--perturbation-draws",
-                   "--noise-correlation", "--train-batch", "--train-pool", "--data-workers"):
+                   "--noise-correlation", "--train-batch", "--train-pool", "--data-workers", "--train-model-config"):
         assert option in text
     assert ExperimentConfig().sequences == 16
 
@@ -110,6 +110,18 @@ def test_the_duplicate_joint_ablation_trains_its_rig_model_with_the_tpose(tmp_pa
         assert run.data == rig_run.data and run.data.rig == rig
         assert run.model == dataclasses.replace(rig_run.model, rest_pose="tpose", duplicate_joints=duplicate_joints)
         assert dataclasses.replace(run, model=rig_run.model) == rig_run
+
+
+def test_the_model_config_sizes_every_trained_model_and_nothing_else(tmp_path):
+    for name in ("flex_4views", "flex_4views_h36m_ring", "flex_4views_h36m_ring_no_duplicates"):
+        small, paper = (train_config(name, 1000, 0, tmp_path, model_config=size) for size in ("small", "paper"))
+        per_model = {field: getattr(small.model, field)
+                     for field in ("views", "fusion", "rest_pose", "duplicate_joints")}
+        assert small.model == dataclasses.replace(CONFIGS["small"], **per_model)
+        assert paper.model == dataclasses.replace(CONFIGS["paper"], **per_model)
+        assert dataclasses.replace(paper, model=small.model) == small
+    with pytest.raises(ValueError, match=r"model_config must be one of \['cpu', 'paper', 'small'\], got 'huge'"):
+        train_config("flex_4views", 1000, 0, tmp_path, model_config="huge")
 
 
 def test_mean_and_spread_of_calibration_draws():

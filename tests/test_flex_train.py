@@ -148,6 +148,23 @@ def test_resume_is_bit_identical_and_the_model_loads(full_run, tmp_path):
     assert_allclose(np.asarray(joints(loaded)), np.asarray(joints(full_model)), rtol=1e-6)
 
 
+def test_the_experiment_resumes_a_killed_run_and_reuses_only_the_same_finished_one(full_run, tmp_path, monkeypatch):
+    """train_models, which `flex_synthetic --train` runs once per command: run again after a kill, it resumes to the
+    uninterrupted model; run again once finished, it reuses the model; asked for another run, it refuses."""
+    from experiments.flex_study import _synthetic
+    config, _, full_model = full_run
+    monkeypatch.setattr(_synthetic, "train_config", lambda name, steps, *args, **kwargs: dataclasses.replace(
+        config, steps=steps))
+    run = lambda steps, **options: _synthetic.train_models(  # noqa: E731
+        tmp_path, steps, names=("flex_1view",), progress=False, **options)["flex_1view"]
+    with pytest.raises(Killed):
+        run(config.steps, log=kill_at(3))
+    assert_same_parameters(full_model, run(config.steps))
+    assert_same_parameters(full_model, run(config.steps, log=kill_at(1)))  # reused: no step is run, none logged
+    with pytest.raises(ValueError, match="config.json differs from the config passed in steps"):
+        run(config.steps + 1)
+
+
 def test_config_errors(cache_dir):
     with pytest.raises(ValueError, match="share clips"):
         _config(cache_dir, validation_data=DATA)

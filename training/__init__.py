@@ -3,7 +3,7 @@
 - :func:`run_training`: the resumable loop: orbax checkpoints written atomically every interval (a killed
   run loses at most one interval), ``--resume`` that continues bit-identically (refusing another config by the
   fields that differ), JSON-lines logs, a tqdm bar, validation at fixed steps. The model-specific step and
-  validation are functions passed in.
+  validation are functions passed in. :func:`check_same_run` applies its rule to a finished run's model.
 - :func:`data_parallel_shardings`: the one-axis ``"data"`` mesh over the local devices (batches sharded
   along their first axis, parameters and optimiser state replicated).
 - :func:`save_model` / :func:`load_model_state`: a trained NNX model as ``config.json`` + ``state.npz``, the
@@ -17,6 +17,7 @@ from importlib.metadata import version as _version
 
 from ._files import write_atomically as write_atomically
 from ._layers import dropout as dropout
+from ._loop import check_same_run as check_same_run
 from ._loop import data_parallel_shardings as data_parallel_shardings
 from ._loop import run_training as run_training
 from ._loop import to_jsonable as to_jsonable

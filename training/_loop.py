@@ -20,7 +20,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ._files import write_atomically
 from ._provenance import provenance
 
-__all__ = ["data_parallel_shardings", "run_training", "to_jsonable"]
+__all__ = ["check_same_run", "data_parallel_shardings", "run_training", "to_jsonable"]
 
 S = TypeVar("S")
 """A training state: a NamedTuple of arrays with a ``step`` field."""
@@ -122,6 +122,17 @@ def _restore_latest(manager: ocp.CheckpointManager, state: S) -> tuple[S, int]:
                      f"{type(error).__name__}") from error
 
 
+def check_same_run(workdir: str | Path, config: Any, independent_of: tuple[str, ...] = ()) -> None:
+    """Refuse ``config`` where ``workdir`` holds a run (its ``config.json``) of another config, naming the fields
+    that differ: the rule by which :func:`run_training` resumes, for callers that reuse a finished run's model."""
+    config_path = Path(workdir) / "config.json"
+    if config_path.is_file():
+        differences = _config_differences(json.loads(config_path.read_text()), config, independent_of)
+        if differences:
+            raise ValueError(f"{config_path} differs from the config passed in {', '.join(differences[:4])}: "
+                             "resume only the same run")
+
+
 def run_training(
     workdir: str | Path,
     config: Any,
@@ -172,11 +183,8 @@ def run_training(
     workdir.mkdir(parents=True, exist_ok=True)
     config_json = json.dumps(_recorded(config, independent_of), indent=2, sort_keys=True) + "\n"
     config_path, log_path = workdir / "config.json", workdir / "log.jsonl"
-    if resume and config_path.is_file():
-        differences = _config_differences(json.loads(config_path.read_text()), config, independent_of)
-        if differences:
-            raise ValueError(f"{config_path} differs from the config passed in {', '.join(differences[:4])}: "
-                             "resume only the same run")
+    if resume:
+        check_same_run(workdir, config, independent_of)
 
     options = ocp.CheckpointManagerOptions(max_to_keep=2)
     with ocp.CheckpointManager(workdir / "checkpoints", options=options) as manager:

@@ -46,6 +46,7 @@ from jaxtyping import ArrayLike
 from matplotlib.figure import Figure
 
 import mocap
+import training
 from flex import (CONFIGS, DETECTION_MODELS, FIXED_RIGS, MAIN_MODEL, MODELS, RIG_MODELS, SKELETON_MODELS, TEST_CLIPS,
                   VALIDATION_CLIPS, Batch, DataConfig, Flex, TrainConfig, averaged_monocular, camera_root, load_flex,
                   make_batch, motion_metrics, normalise_2d, predict, root_position_error, train, triangulation_baseline)
@@ -119,18 +120,21 @@ class ExperimentConfig:
 
 
 def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = (), *,
-                 batch_size: int = 16, pool_size: int | None = None) -> TrainConfig:
+                 batch_size: int = 16, pool_size: int | None = None, model_config: str = "small") -> TrainConfig:
     """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`,
-    :data:`~flex.DETECTION_MODELS` or :data:`~flex.SKELETON_MODELS`: the ``"small"``
-    config on the training clips plus ``extra_clips`` (motion files), ``batch_size`` windows per step from a pool
+    :data:`~flex.DETECTION_MODELS` or :data:`~flex.SKELETON_MODELS`: the ``model_config`` of :data:`~flex.CONFIGS`
+    (``"small"``: the shipped models; ``"paper"``: Table 6's) on the training clips plus ``extra_clips`` (motion
+    files), ``batch_size`` windows per step from a pool
     of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig, detection or skeleton
     model sees only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION` (a skeleton
     model's samples are its rig model's)."""
+    if model_config not in CONFIGS:
+        raise ValueError(f"model_config must be one of {sorted(CONFIGS)}, got {model_config!r}")
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
     if name in RIG_MODELS or name in DETECTION_MODELS or name in SKELETON_MODELS:
         detector = mocap.DetectorConfig(noise_correlation=RIG_NOISE_CORRELATION)
-        model = dataclasses.replace(CONFIGS["small"], views=_TEST_VIEWS)
+        model = dataclasses.replace(CONFIGS[model_config], views=_TEST_VIEWS)
         if name in RIG_MODELS:
             extra = {"rig": RIG_MODELS[name]}
         elif name in DETECTION_MODELS:
@@ -146,7 +150,7 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
             batch_size=batch_size, validation_data=dataclasses.replace(data, clips=VALIDATION_CLIPS))
     views, fusion = MODELS[name]
     return TrainConfig(
-        model=dataclasses.replace(CONFIGS["small"], views=views, fusion=fusion), steps=steps, seed=seed,
+        model=dataclasses.replace(CONFIGS[model_config], views=views, fusion=fusion), steps=steps, seed=seed,
         cache_dir=str(cache_dir), batch_size=batch_size, pool_size=pool_size or base.pool_size,
         data=dataclasses.replace(base.data, views=views, clips=clips),
         validation_data=dataclasses.replace(base.validation_data, views=views))
@@ -154,19 +158,24 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
 
 def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple[str, ...] = tuple(MODELS),
                  extra_clips: tuple[str, ...] = (), batch_size: int = 16, pool_size: int | None = None,
-                 data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
+                 model_config: str = "small", data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
                  progress: bool = True) -> dict[str, Flex]:
     """Train the models ``names`` (of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`, :data:`~flex.DETECTION_MODELS`
     and :data:`~flex.SKELETON_MODELS`) in ``workdir/<name>`` for
-    ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints; a finished model folder
-    ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships. The sample pools are cached once for all models
-    in ``workdir/data_cache``, built by ``data_workers`` processes."""
+    ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints (refusing one of another
+    config); a finished model folder ``workdir/<name>/model`` is what ``flex/assets/<name>`` ships, and is reused
+    only if it was trained by the same config. The sample pools are cached once for all models in
+    ``workdir/data_cache``, built by ``data_workers`` processes."""
     models = {}
     for name in names:
         run = Path(workdir) / name
         config = train_config(name, steps, seed, Path(workdir) / "data_cache", extra_clips, batch_size=batch_size,
-                              pool_size=pool_size)
+                              pool_size=pool_size, model_config=model_config)
         done = (run / "model" / "state.npz").is_file()
+        if done:
+            # Only the same run may stand in for this one: a finished model of another size or step count is
+            # refused here, as training.run_training refuses to resume another run's checkpoints.
+            training.check_same_run(run, config)
         models[name] = load_flex(run / "model") if done else train(
             config, run, resume=(run / "checkpoints").is_dir(), progress=progress, data_workers=data_workers,
             log=lambda record, name=name: log({"model": name, **record}))
