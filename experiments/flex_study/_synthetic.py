@@ -124,8 +124,8 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
     """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`,
     :data:`~flex.DETECTION_MODELS` or :data:`~flex.SKELETON_MODELS`: the ``model_config`` of :data:`~flex.CONFIGS`
     (``"small"``: the shipped models; ``"paper"``: Table 6's) on the training clips plus ``extra_clips`` (motion
-    files), ``batch_size`` windows per step from a pool
-    of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a rig, detection or skeleton
+    files), ``batch_size`` windows per step from a pool of ``pool_size`` (None: 4096 for a rig model, else
+    :class:`~flex.TrainConfig`'s); a rig, detection or skeleton
     model sees only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION` (a skeleton
     model's samples are its rig model's)."""
     if model_config not in CONFIGS:
