@@ -69,6 +69,7 @@ from ._train import build_pool as build_pool
 from ._train import load_flex as load_flex
 from ._train import train as train
 from ._train import train_step as train_step
+from ._train import validation_mpjpe as validation_mpjpe
 from ._train import TrainConfig as TrainConfig
 from ._train import TrainState as TrainState
 

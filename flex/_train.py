@@ -45,7 +45,7 @@ from ._data import Batch, DataConfig, make_sample
 from ._losses import LossWeights, discriminator_loss, generator_loss
 from ._model import CONFIGS, Discriminator, Flex, FlexConfig
 
-__all__ = ["TrainConfig", "TrainState", "build_pool", "load_flex", "train", "train_step"]
+__all__ = ["TrainConfig", "TrainState", "build_pool", "load_flex", "train", "train_step", "validation_mpjpe"]
 
 
 
@@ -131,6 +131,9 @@ class TrainState(NamedTuple):
     key: jax.Array
     """``key(seed)``: step i uses ``fold_in(key, i)``."""
 
+
+_VALIDATION_SEED = 1_000_000
+"""First seed of the validation windows: far from the training pool's seeds (0 ... pool_size - 1)."""
 
 _AMSGRAD = optax.scale_by_amsgrad()
 """The official trainer's AMSGrad, for the generator and for the discriminator, less its step size: train_step takes
@@ -227,10 +230,31 @@ def _validation_errors(graphdef: nnx.GraphDef, params: Any, rest: Any, batch: Ba
                                                  STRUCTRI17.index("mid_hip")), axis=-1)
 
 
-def _validate(graphdef, state: TrainState, pool: Batch, batch_size: int) -> dict[str, float]:
-    errors = [_validation_errors(graphdef, state.params, state.rest, jax.tree.map(lambda x: x[i: i + batch_size], pool))
+def _mean_validation_mpjpe(graphdef: nnx.GraphDef, params: Any, rest: Any, pool: Batch, batch_size: int) -> float:
+    errors = [_validation_errors(graphdef, params, rest, jax.tree.map(lambda x: x[i: i + batch_size], pool))
               for i in range(0, pool.points_2d.shape[0], batch_size)]
-    return {"val_mpjpe_mm": 1000.0 * float(jnp.mean(jnp.concatenate(errors)))}
+    return 1000.0 * float(jnp.mean(jnp.concatenate(errors)))
+
+
+def _validation_pool(config: TrainConfig, cache_dir: Path | None, progress: bool, workers: int) -> Batch:
+    return build_pool(config.validation_data, config.validation_size, _VALIDATION_SEED, cache_dir, progress, workers,
+                      config.model_config.rest_pose)
+
+
+def validation_mpjpe(model: Flex, config: TrainConfig, cache_dir: str | Path | None = None, *,
+                     progress: bool = False) -> float:
+    """MPJPE (mm, protocol #1, deterministic model) of ``model`` on the validation windows of ``config``: the
+    figure :func:`train` logs as ``val_mpjpe_mm``, so that a shipped model can be compared with a new run on the same
+    windows (cached in ``cache_dir`` when given)."""
+    if model.config.views != config.validation_data.views:
+        raise ValueError(f"the model has {model.config.views} views, the validation windows "
+                         f"{config.validation_data.views}")
+    if model.config.rest_pose != config.model_config.rest_pose:
+        raise ValueError(f"the model's rest pose is {model.config.rest_pose!r}, the config's "
+                         f"{config.model_config.rest_pose!r}")
+    pool = _validation_pool(config, None if cache_dir is None else Path(cache_dir), progress, 1)
+    graphdef, params, rest = nnx.split(model, nnx.Param, ...)
+    return _mean_validation_mpjpe(graphdef, params, rest, pool, config.batch_size)
 
 
 def load_flex(path: str | Path) -> Flex:
@@ -256,8 +280,7 @@ def train(
     workdir = Path(workdir).resolve()
     cache_dir = workdir / "data_cache" if config.cache_dir is None else Path(config.cache_dir)
     pool = _training_pool(config, cache_dir, progress, data_workers)
-    validation = build_pool(config.validation_data, config.validation_size, 1_000_000, cache_dir, progress,
-                            data_workers, config.model_config.rest_pose)
+    validation = _validation_pool(config, cache_dir, progress, data_workers)
 
     model_config = config.model_config
     rngs = nnx.Rngs(config.seed)
@@ -276,7 +299,9 @@ def train(
     state = training.run_training(
         workdir, config, state, step, steps=config.steps, resume=resume, log_interval=config.log_interval,
         checkpoint_interval=config.checkpoint_interval, validation_interval=config.validation_interval,
-        validate=lambda state: _validate(graphdef, state, validation, config.batch_size), replicated=replicated,
+        validate=lambda state: {"val_mpjpe_mm": _mean_validation_mpjpe(graphdef, state.params, state.rest, validation,
+                                                                       config.batch_size)},
+        replicated=replicated,
         learning_rate=lambda i: config.learning_rates(i)[0],
         log=log, progress=progress, description="flex train")
     training.save_model(workdir / "model", model_config, nnx.merge_state(state.params, state.rest))

@@ -148,6 +148,21 @@ def test_resume_is_bit_identical_and_the_model_loads(full_run, tmp_path):
     assert_allclose(np.asarray(joints(loaded)), np.asarray(joints(full_model)), rtol=1e-6)
 
 
+def test_validation_mpjpe_is_the_figure_training_logs(full_run, tmp_path):
+    """A shipped model is compared with a new run by validation_mpjpe: it must be the last val_mpjpe_mm of the log,
+    on the same windows, for a model read back from its folder and without the run's cache."""
+    config, full_dir, _ = full_run
+    logged = [json.loads(line) for line in (full_dir / "log.jsonl").read_text().splitlines()][-1]["val_mpjpe_mm"]
+    loaded = flex.load_flex(full_dir / "model")
+    assert flex.validation_mpjpe(loaded, config) == pytest.approx(logged, rel=1e-5)
+    assert flex.validation_mpjpe(loaded, config, tmp_path) == pytest.approx(logged, rel=1e-5)
+    other_views = dataclasses.replace(config, model=dataclasses.replace(TINY, views=3),
+                                      data=dataclasses.replace(DATA, views=3),
+                                      validation_data=dataclasses.replace(VALIDATION, views=3))
+    with pytest.raises(ValueError, match="the model has 2 views, the validation windows 3"):
+        flex.validation_mpjpe(loaded, other_views)
+
+
 def test_the_experiment_resumes_a_killed_run_and_reuses_only_the_same_finished_one(full_run, tmp_path, monkeypatch):
     """train_models, which `flex_synthetic --train` runs once per command: run again after a kill, it resumes to the
     uninterrupted model; run again once finished, it reuses the model; asked for another run, it refuses."""
