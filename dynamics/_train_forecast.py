@@ -153,13 +153,10 @@ class ForecastTrainConfig:
 
 def forecast_split(data_root: str | os.PathLike | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The benchmark's train split as (training files, validation files): the last file of each action
-    validates, the rest train. Absolute paths."""
+    validates (:func:`mocap.cmu_expmap_validation_files`), the rest train. Absolute paths."""
     files = [f.resolve() for f in mocap.cmu_expmap_files(data_root, "train")]
-    actions: dict[str, list[Path]] = {}
-    for file in files:
-        actions.setdefault(file.parent.name, []).append(file)
-    last = {max(group, key=lambda f: int(f.stem.rsplit("_", 1)[1])) for group in actions.values()}
-    return tuple(str(f) for f in files if f not in last), tuple(str(f) for f in files if f in last)
+    validation = {f.resolve() for f in mocap.cmu_expmap_validation_files(data_root)}
+    return tuple(str(f) for f in files if f not in validation), tuple(str(f) for f in files if f in validation)
 
 
 def pair_split(data_root: str | os.PathLike | None = None) -> tuple[str, str]:

@@ -20,6 +20,7 @@ from typing import Annotated, Literal
 
 import tyro
 
+import mocap
 from experiments import _cli
 from experiments.flex_study import ExperimentConfig, run_experiment, train_models
 from flex import (CONFIGS, DETECTION_MODELS, MAIN_MODEL, MODELS, RIG_MODELS, SHIPPED_MODELS, SKELETON_MODELS,
@@ -59,6 +60,10 @@ class Config:
     train_expmap: bool = False
     """With --train: the training windows also come from the CMU-Mocap benchmark's train split
     (DATA/cmu_expmap/train, in the data folder of --data-root); its test split never enters training."""
+    validate_expmap: bool = False
+    """With --train-expmap: the last file of each action of the train split (mocap.cmu_expmap_validation_files)
+    leaves training and validates beside 03_01_uneven, so that the training log's validation MPJPE includes the
+    benchmark's motion."""
     test_expmap: bool = False
     """Test motion: the CMU-Mocap benchmark's test split (DATA/cmu_expmap/test, 24 files) instead of --clips."""
     model_dir: Path = SHIPPED_MODELS
@@ -83,6 +88,8 @@ class Config:
             raise ValueError(f"--train-names must name models of {known}, got {unknown}")
         if self.train_expmap and not self.train:
             raise ValueError("--train-expmap needs --train")
+        if self.validate_expmap and not self.train_expmap:
+            raise ValueError("--validate-expmap needs --train-expmap")
         if self.test_expmap and self.experiment.clips != ExperimentConfig().clips:
             raise ValueError("--test-expmap and --clips exclude each other")
         self.train_clips(), self.test_clips()  # missing files or data folders are refused before any work
@@ -97,7 +104,16 @@ class Config:
     def train_clips(self) -> tuple[str, ...]:
         """The motion files --train adds to the shipped training clips (absolute paths, so that the sample pools'
         cache keys do not depend on the working folder)."""
-        return _cli.expmap_clips(self.data_root, "train") if self.train_expmap else ()
+        if not self.train_expmap:
+            return ()
+        validation = set(self.validation_clips())
+        return tuple(clip for clip in _cli.expmap_clips(self.data_root, "train") if clip not in validation)
+
+    def validation_clips(self) -> tuple[str, ...]:
+        """The motion files --train validates on beside the shipped validation clip (absolute paths)."""
+        if not self.validate_expmap:
+            return ()
+        return tuple(str(path.resolve()) for path in mocap.cmu_expmap_validation_files(self.data_root))
 
 
 def main(config: Config) -> None:
@@ -113,7 +129,8 @@ def main(config: Config) -> None:
         if config.train:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
             models |= train_models(config.out / "models", steps, seed=experiment.seed, names=config.train_names,
-                                   extra_clips=config.train_clips(), batch_size=config.train_batch,
+                                   extra_clips=config.train_clips(), validation_clips=config.validation_clips(),
+                                   batch_size=config.train_batch,
                                    pool_size=config.train_pool, model_config=config.train_model_config,
                                    data_workers=config.data_workers, log=log)
         results = run_experiment(experiment, models, out, log=log)

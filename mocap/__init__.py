@@ -30,6 +30,7 @@ from ._cmu_expmap import CMU_EXPMAP_PARENTS as CMU_EXPMAP_PARENTS
 from ._cmu_expmap import cmu_expmap_clip as cmu_expmap_clip
 from ._cmu_expmap import cmu_expmap_files as cmu_expmap_files
 from ._cmu_expmap import cmu_expmap_split as cmu_expmap_split
+from ._cmu_expmap import cmu_expmap_validation_files as cmu_expmap_validation_files
 from ._cmu_expmap import read_cmu_expmap as read_cmu_expmap
 from ._data_root import find_data_root as find_data_root
 from ._detections import BODY25_PAF_PAIRS as BODY25_PAF_PAIRS

@@ -30,8 +30,8 @@ from ._clips import Clip, clip_from_motions
 from ._data_root import find_data_root
 from ._motion import Motion, _pad, _padded_frames, build_motion, malformed
 
-__all__ = ["CMU_EXPMAP_FPS", "CMU_EXPMAP_NODES", "CMU_EXPMAP_OFFSETS", "CMU_EXPMAP_PARENTS", "cmu_expmap_clip", "cmu_expmap_split",
-           "cmu_expmap_files", "read_cmu_expmap"]
+__all__ = ["CMU_EXPMAP_FPS", "CMU_EXPMAP_NODES", "CMU_EXPMAP_OFFSETS", "CMU_EXPMAP_PARENTS", "cmu_expmap_clip",
+           "cmu_expmap_files", "cmu_expmap_split", "cmu_expmap_validation_files", "read_cmu_expmap"]
 
 _jit_axis_angle_to_matrix = jax.jit(axis_angle_to_matrix)
 
@@ -114,6 +114,18 @@ def cmu_expmap_files(data_root: str | os.PathLike | None = None, split: str = "t
     if not files:
         raise ValueError(f"{root / 'cmu_expmap' / split} holds no <action>/<file>.txt")
     return files
+
+
+def cmu_expmap_validation_files(data_root: str | os.PathLike | None = None) -> list[Path]:
+    """The project's validation files of the benchmark: the highest-numbered file of each action of the train split
+    (in :func:`cmu_expmap_files`' order). A model trained on the rest of the train split is chosen on these; the
+    test split is never used for a choice."""
+    files = cmu_expmap_files(data_root, "train")
+    actions: dict[str, list[Path]] = {}
+    for file in files:
+        actions.setdefault(file.parent.name, []).append(file)
+    last = {max(group, key=lambda f: int(f.stem.rsplit("_", 1)[1])) for group in actions.values()}
+    return [f for f in files if f in last]
 
 
 def cmu_expmap_split(path: str | os.PathLike) -> str | None:

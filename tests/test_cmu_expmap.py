@@ -104,6 +104,16 @@ def test_a_bad_split_or_folder_is_refused(tmp_path, data_root):
         mocap.cmu_expmap_files(tmp_path)
 
 
+def test_the_validation_files_are_the_last_of_each_train_action(data_root):
+    """The highest-numbered file of each of the 8 actions, listed by hand from the data folder."""
+    validation = mocap.cmu_expmap_validation_files(data_root)
+    assert [f"{f.parent.name}/{f.name}" for f in validation] == [
+        "basketball/basketball_5.txt", "basketball_signal/basketball_signal_5.txt",
+        "directing_traffic/directing_traffic_4.txt", "jumping/jumping_5.txt", "running/running_5.txt",
+        "soccer/soccer_5.txt", "walking/walking_5.txt", "walking_extra/walking_52.txt"]
+    assert set(validation) <= set(mocap.cmu_expmap_files(data_root, "train"))
+
+
 def test_a_file_is_a_clip_that_scene_synthesis_takes(walk):
     path, motion = walk
     clip = mocap.cmu_expmap_clip(path)

@@ -8,11 +8,12 @@ import pytest
 from flax import nnx
 from numpy.testing import assert_allclose
 
+import mocap
 from experiments import _cli, flex_synthetic
 from experiments.flex_study import ExperimentConfig, train_config
 from experiments.flex_study._synthetic import mean_and_spread
-from flex import (CONFIGS, MODELS, RIG_MODELS, SKELETON_MODELS, DataConfig, Flex, averaged_monocular, load_models,
-                  make_batch, predict)
+from flex import (CONFIGS, MODELS, RIG_MODELS, SKELETON_MODELS, VALIDATION_CLIPS, DataConfig, Flex, averaged_monocular,
+                  load_models, make_batch, predict)
 
 FRAMES = 24
 
@@ -50,8 +51,9 @@ def test_help_explains_every_option(capsys):
         _cli.parse(flex_synthetic.Config, ["--help"], prog="flex_synthetic")
     text = capsys.readouterr().out
     for option in ("--out", "--quick", "--train", "--train-steps", "--model-dir", "--seed", "--sequences", "--frames",
-                   "--train-names", "--train-expmap", "--test-expmap", "--rigs", "--perturbation-draws",
-                   "--noise-correlation", "--train-batch", "--train-pool", "--data-workers", "--train-model-config"):
+                   "--train-names", "--train-expmap", "--validate-expmap", "--test-expmap", "--rigs",
+                   "--perturbation-draws", "--noise-correlation", "--train-batch", "--train-pool", "--data-workers",
+                   "--train-model-config"):
         assert option in text
     assert ExperimentConfig().sequences == 16
 
@@ -78,6 +80,7 @@ def test_a_bad_option_is_refused_by_name(option, value, message):
 @pytest.mark.parametrize(("options", "message"), [
     ({"train_names": ("flex_9views",)}, "--train-names must name models of"),
     ({"train_expmap": True}, "--train-expmap needs --train"),
+    ({"train": True, "validate_expmap": True}, "--validate-expmap needs --train-expmap"),
     ({"train_batch": 0}, "--train-batch must be >= 1"),
     ({"train_pool": 0}, "--train-pool must be >= 1"),
     ({"data_workers": 0}, "--data-workers must be >= 1"),
@@ -122,6 +125,22 @@ def test_the_model_config_sizes_every_trained_model_and_nothing_else(tmp_path):
         assert dataclasses.replace(paper, model=small.model) == small
     with pytest.raises(ValueError, match=r"model_config must be one of \['cpu', 'paper', 'small'\], got 'huge'"):
         train_config("flex_4views", 1000, 0, tmp_path, model_config="huge")
+
+
+def test_validate_expmap_moves_the_benchmark_validation_files_from_training_to_validation(tmp_path, data_root):
+    command = flex_synthetic.Config(out=tmp_path, train=True, train_expmap=True, data_root=data_root)
+    validated = dataclasses.replace(command, validate_expmap=True)
+    files = {str(f.resolve()) for f in mocap.cmu_expmap_validation_files(data_root)}
+    assert set(validated.validation_clips()) == files and len(files) == 8
+    assert set(validated.train_clips()) == set(command.train_clips()) - files and command.validation_clips() == ()
+    for name in ("flex_4views", "flex_4views_h36m_ring"):
+        shipped = train_config(name, 1500, 0, tmp_path, command.train_clips())
+        run = train_config(name, 1500, 0, tmp_path, validated.train_clips(),
+                           validation_clips=validated.validation_clips())
+        assert shipped.validation_data.clip_names == VALIDATION_CLIPS
+        assert run.validation_data.clip_names == VALIDATION_CLIPS + validated.validation_clips()
+        assert not set(run.data.clip_names) & set(run.validation_data.clip_names)
+        assert dataclasses.replace(run, data=shipped.data, validation_data=shipped.validation_data) == shipped
 
 
 def test_mean_and_spread_of_calibration_draws():

@@ -120,18 +120,20 @@ class ExperimentConfig:
 
 
 def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips: tuple[str, ...] = (), *,
-                 batch_size: int = 16, pool_size: int | None = None, model_config: str = "small") -> TrainConfig:
+                 batch_size: int = 16, pool_size: int | None = None, model_config: str = "small",
+                 validation_clips: tuple[str, ...] = ()) -> TrainConfig:
     """The run that trains model ``name`` of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`,
     :data:`~flex.DETECTION_MODELS` or :data:`~flex.SKELETON_MODELS`: the ``model_config`` of :data:`~flex.CONFIGS`
     (``"small"``: the shipped models; ``"paper"``: Table 6's) on the training clips plus ``extra_clips`` (motion
-    files), ``batch_size`` windows per step from a pool of ``pool_size`` (None: 4096 for a rig model, else
-    :class:`~flex.TrainConfig`'s); a rig, detection or skeleton
-    model sees only its rig, static, with the correlated 2D noise of :data:`RIG_NOISE_CORRELATION` (a skeleton
-    model's samples are its rig model's)."""
+    files), validated on :data:`~flex.VALIDATION_CLIPS` plus ``validation_clips`` (motion files), ``batch_size``
+    windows per step from a pool of ``pool_size`` (None: 4096 for a rig model, else :class:`~flex.TrainConfig`'s); a
+    rig, detection or skeleton model sees only its rig, static, with the correlated 2D noise of
+    :data:`RIG_NOISE_CORRELATION` (a skeleton model's samples are its rig model's)."""
     if model_config not in CONFIGS:
         raise ValueError(f"model_config must be one of {sorted(CONFIGS)}, got {model_config!r}")
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
+    validation = VALIDATION_CLIPS + tuple(validation_clips)
     if name in RIG_MODELS or name in DETECTION_MODELS or name in SKELETON_MODELS:
         detector = mocap.DetectorConfig(noise_correlation=RIG_NOISE_CORRELATION)
         model = dataclasses.replace(CONFIGS[model_config], views=_TEST_VIEWS)
@@ -147,19 +149,19 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
         return TrainConfig(
             model=model, steps=steps, seed=seed,
             cache_dir=str(cache_dir), data=data, pool_size=pool_size or 4096, static_fraction=1.0,
-            batch_size=batch_size, validation_data=dataclasses.replace(data, clips=VALIDATION_CLIPS))
+            batch_size=batch_size, validation_data=dataclasses.replace(data, clips=validation))
     views, fusion = MODELS[name]
     return TrainConfig(
         model=dataclasses.replace(CONFIGS[model_config], views=views, fusion=fusion), steps=steps, seed=seed,
         cache_dir=str(cache_dir), batch_size=batch_size, pool_size=pool_size or base.pool_size,
         data=dataclasses.replace(base.data, views=views, clips=clips),
-        validation_data=dataclasses.replace(base.validation_data, views=views))
+        validation_data=dataclasses.replace(base.validation_data, views=views, clips=validation))
 
 
 def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple[str, ...] = tuple(MODELS),
-                 extra_clips: tuple[str, ...] = (), batch_size: int = 16, pool_size: int | None = None,
-                 model_config: str = "small", data_workers: int = 1, log: Callable[[dict], None] = lambda record: None,
-                 progress: bool = True) -> dict[str, Flex]:
+                 extra_clips: tuple[str, ...] = (), validation_clips: tuple[str, ...] = (), batch_size: int = 16,
+                 pool_size: int | None = None, model_config: str = "small", data_workers: int = 1,
+                 log: Callable[[dict], None] = lambda record: None, progress: bool = True) -> dict[str, Flex]:
     """Train the models ``names`` (of :data:`~flex.MODELS`, :data:`~flex.RIG_MODELS`, :data:`~flex.DETECTION_MODELS`
     and :data:`~flex.SKELETON_MODELS`) in ``workdir/<name>`` for
     ``steps`` steps each (:func:`train_config`), resuming a run that has checkpoints (refusing one of another
@@ -170,7 +172,7 @@ def train_models(workdir: str | Path, steps: int, *, seed: int = 0, names: tuple
     for name in names:
         run = Path(workdir) / name
         config = train_config(name, steps, seed, Path(workdir) / "data_cache", extra_clips, batch_size=batch_size,
-                              pool_size=pool_size, model_config=model_config)
+                              pool_size=pool_size, model_config=model_config, validation_clips=validation_clips)
         done = (run / "model" / "state.npz").is_file()
         if done:
             # Only the same run may stand in for this one: a finished model of another size or step count is
