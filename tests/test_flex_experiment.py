@@ -1,6 +1,7 @@
 """FLEX's experiment (experiments/flex_study, experiments/flex_synthetic.py) on tiny untrained models."""
 
 import dataclasses
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -141,6 +142,14 @@ def test_validate_expmap_moves_the_benchmark_validation_files_from_training_to_v
         assert run.validation_data.clip_names == VALIDATION_CLIPS + validated.validation_clips()
         assert not set(run.data.clip_names) & set(run.validation_data.clip_names)
         assert dataclasses.replace(run, data=shipped.data, validation_data=shipped.validation_data) == shipped
+
+
+def test_every_step_count_the_command_takes_makes_a_run():
+    """--quick trains 100 steps and --train-steps takes any count >= 1: the warm-up shrinks with a short run, and runs
+    of 1000 steps or more (every shipped model's) keep the default."""
+    for name in ("flex_4views", "flex_4views_h36m_ring"):
+        assert [train_config(name, steps, 0, Path("cache")).warmup_steps
+                for steps in (1, 4, flex_synthetic.QUICK_TRAIN_STEPS, 1000, 3000)] == [0, 0, 10, 100, 100]
 
 
 def test_mean_and_spread_of_calibration_draws():

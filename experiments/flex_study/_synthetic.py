@@ -134,6 +134,8 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
     base = TrainConfig()
     clips = base.data.clip_names + tuple(extra_clips)
     validation = VALIDATION_CLIPS + tuple(validation_clips)
+    # A short run (--quick, a smoke run) warms up over a tenth of its steps; from 1000 steps on, the default.
+    warmup_steps = min(base.warmup_steps, steps // 10)
     if name in RIG_MODELS or name in DETECTION_MODELS or name in SKELETON_MODELS:
         detector = mocap.DetectorConfig(noise_correlation=RIG_NOISE_CORRELATION)
         model = dataclasses.replace(CONFIGS[model_config], views=_TEST_VIEWS)
@@ -147,14 +149,14 @@ def train_config(name: str, steps: int, seed: int, cache_dir: Path, extra_clips:
             model = dataclasses.replace(model, rest_pose="tpose", duplicate_joints=duplicate_joints)
         data = DataConfig(views=_TEST_VIEWS, frames=base.data.frames, clips=clips, detector=detector, **extra)
         return TrainConfig(
-            model=model, steps=steps, seed=seed,
+            model=model, steps=steps, seed=seed, warmup_steps=warmup_steps,
             cache_dir=str(cache_dir), data=data, pool_size=pool_size or 4096, static_fraction=1.0,
             batch_size=batch_size, validation_data=dataclasses.replace(data, clips=validation))
     views, fusion = MODELS[name]
     return TrainConfig(
         model=dataclasses.replace(CONFIGS[model_config], views=views, fusion=fusion), steps=steps, seed=seed,
-        cache_dir=str(cache_dir), batch_size=batch_size, pool_size=pool_size or base.pool_size,
-        data=dataclasses.replace(base.data, views=views, clips=clips),
+        warmup_steps=warmup_steps, cache_dir=str(cache_dir), batch_size=batch_size,
+        pool_size=pool_size or base.pool_size, data=dataclasses.replace(base.data, views=views, clips=clips),
         validation_data=dataclasses.replace(base.validation_data, views=views, clips=validation))
 
 
