@@ -130,9 +130,8 @@ def main(config: Config) -> None:
             steps = config.train_steps or (QUICK_TRAIN_STEPS if config.quick else TRAIN_STEPS)
             models |= train_models(config.out / "models", steps, seed=experiment.seed, names=config.train_names,
                                    extra_clips=config.train_clips(), validation_clips=config.validation_clips(),
-                                   batch_size=config.train_batch,
-                                   pool_size=config.train_pool, model_config=config.train_model_config,
-                                   data_workers=config.data_workers, log=log)
+                                   batch_size=config.train_batch, pool_size=config.train_pool,
+                                   model_config=config.train_model_config, data_workers=config.data_workers, log=log)
         results = run_experiment(experiment, models, out, log=log)
         report = (out / "results.md").read_text()
     print(report)
