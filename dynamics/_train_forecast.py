@@ -154,9 +154,9 @@ class ForecastTrainConfig:
 def forecast_split(data_root: str | os.PathLike | None = None) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The benchmark's train split as (training files, validation files): the last file of each action
     validates (:func:`mocap.cmu_expmap_validation_files`), the rest train. Absolute paths."""
-    files = [f.resolve() for f in mocap.cmu_expmap_files(data_root, "train")]
-    validation = {f.resolve() for f in mocap.cmu_expmap_validation_files(data_root)}
-    return tuple(str(f) for f in files if f not in validation), tuple(str(f) for f in files if f in validation)
+    validation = mocap.cmu_expmap_validation_files(data_root)
+    training = [f for f in mocap.cmu_expmap_files(data_root, "train") if f not in validation]
+    return tuple(str(f.resolve()) for f in training), tuple(str(f.resolve()) for f in validation)
 
 
 def pair_split(data_root: str | os.PathLike | None = None) -> tuple[str, str]:
