@@ -1,6 +1,7 @@
 """Multi-person dynamics models (PHD+T and its successors, Karia 2023): their neural building blocks in Flax NNX.
 
-- :class:`ResNetBackbone`: a small ResNet (GroupNorm, no mutable state) from person crops to features phi.
+- :class:`ResNetBackbone`: a small ResNet (GroupNorm, no mutable state) from person crops to features phi
+  (:data:`Pooling`: its last map averaged or flattened).
 - :class:`HMRHead`, :class:`SMPLParams`, :func:`mean_params`: the HMR regressor from features to SMPL pose (6D),
   shape and weak-perspective crop camera (:func:`geometry.crop_camera_to_translation` turns the camera into a
   full-perspective translation).
@@ -26,6 +27,7 @@ from ._attention import AgentAttention as AgentAttention
 from ._attention import GPTLayer as GPTLayer
 from ._attention import InputEncoder as InputEncoder
 from ._attention import KeyValues as KeyValues
+from ._backbone import Pooling as Pooling
 from ._backbone import ResNetBackbone as ResNetBackbone
 from ._canonical import canonical_features as canonical_features
 from ._canonical import canonicalise as canonicalise

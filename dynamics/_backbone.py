@@ -2,19 +2,26 @@
 
 The thesis uses HMR's frozen ResNet-50 on 224 x 224 crops (2048 features, precomputed; spec section 3). This is
 the same family at a fraction of the cost: a stride-2 3x3 stem, stages of residual basic blocks (each stage after
-the first halves the resolution), global average pooling and a linear map to ``feature_dim``. GroupNorm replaces
+the first halves the resolution), then global average pooling (ResNet's) or the last feature map flattened, and a
+linear map to ``feature_dim``. GroupNorm replaces
 batch norm, so the network has no batch statistics and no mutable state: training and inference compute the same
 function, and per-person batches of any size (even one crop) are fine.
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import jax
 import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float
 
-__all__ = ["ResNetBackbone"]
+__all__ = ["Pooling", "ResNetBackbone"]
+
+Pooling = Literal["mean", "flatten"]
+"""How the last feature map becomes one vector: its mean over the positions (ResNet's global average pooling), or
+all of it flattened, which keeps where in the crop each feature fired."""
 
 
 def _group_norm(channels: int, groups: int, *, rngs: nnx.Rngs, zero_scale: bool = False) -> nnx.GroupNorm:
@@ -54,8 +61,9 @@ class ResNetBackbone(nnx.Module):
 
     With the defaults a 64 x 64 crop is 32 x 32 after the stem and 4 x 4 in the last stage (widths 16, 32, 64,
     128). ``norm_groups`` is GroupNorm's group count (fewer where a layer is narrower). ``crop_size`` is the side of
-    the crops it takes: the global pooling would accept any, so crops of another size are refused instead of being
-    turned into features the head was never trained on."""
+    the crops it takes: crops of another size are refused instead of being turned into features the head was never
+    trained on. ``pooling`` (:data:`Pooling`): ``"mean"`` gives the head ``widths[-1]`` numbers per crop, ``"flatten"``
+    the whole last map (``4 * 4 * 128`` with the defaults)."""
 
     def __init__(
         self,
@@ -65,12 +73,16 @@ class ResNetBackbone(nnx.Module):
         norm_groups: int = 8,
         *,
         crop_size: int = 64,
+        pooling: Pooling = "mean",
         rngs: nnx.Rngs,
     ) -> None:
         if not widths or blocks_per_stage < 1:
             raise ValueError(f"need at least one stage and one block per stage, got {widths}, {blocks_per_stage}")
+        if pooling not in ("mean", "flatten"):
+            raise ValueError(f"pooling must be 'mean' or 'flatten', got {pooling!r}")
         self.feature_dim = feature_dim
         self.crop_size = crop_size
+        self.pooling = pooling
         self.stem = nnx.Conv(3, widths[0], (3, 3), strides=2, padding=1, use_bias=False, rngs=rngs)
         self.stem_norm = _group_norm(widths[0], norm_groups, rngs=rngs)
         blocks, previous = [], widths[0]
@@ -80,7 +92,10 @@ class ResNetBackbone(nnx.Module):
                 blocks.append(BasicBlock(previous, width, stride, norm_groups, rngs=rngs))
                 previous = width
         self.blocks = nnx.List(blocks)
-        self.head = nnx.Linear(previous, feature_dim, rngs=rngs)
+        side = crop_size
+        for _ in widths:  # the stem and each later stage halve the side (3x3, stride 2, padding 1: rounded up)
+            side = -(-side // 2)
+        self.head = nnx.Linear(previous * (side * side if pooling == "flatten" else 1), feature_dim, rngs=rngs)
 
     def __call__(self, crops: Float[Array, "*batch H W 3"]) -> Float[Array, "*batch feature_dim"]:
         *batch, height, width, _ = crops.shape
@@ -91,4 +106,5 @@ class ResNetBackbone(nnx.Module):
         x = jax.nn.relu(self.stem_norm(self.stem(x)))
         for block in self.blocks:
             x = block(x)
-        return self.head(jnp.mean(x, axis=(1, 2))).reshape(*batch, self.feature_dim)
+        pooled = jnp.mean(x, axis=(1, 2)) if self.pooling == "mean" else x.reshape(x.shape[0], -1)
+        return self.head(pooled).reshape(*batch, self.feature_dim)

@@ -50,7 +50,7 @@ from jaxtyping import Array, Float
 import geometry
 import training
 
-from ._backbone import ResNetBackbone
+from ._backbone import Pooling, ResNetBackbone
 from ._data import (VALIDATION_DATA, DataConfig, Frames, build_frames, check_validation_apart, gather_windows,
                     window_starts, without_crops)
 from ._hmr import HMRHead, SMPLParams, mean_params
@@ -70,6 +70,8 @@ class BackboneConfig:
     feature_dim: int = 256
     crop_size: int = 64
     """Side of the crops it takes, pixels (saved with it: an evaluation crops at the trained size)."""
+    pooling: Pooling = "mean"
+    """How the last feature map becomes the features (:data:`dynamics.Pooling`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,7 +164,7 @@ def check_crop_sizes(crop_size: int, **data: DataConfig) -> None:
 
 def _backbone_from_config(config: BackboneConfig, rngs: nnx.Rngs) -> ResNetBackbone:
     return ResNetBackbone(tuple(config.widths), config.blocks_per_stage, config.feature_dim, crop_size=config.crop_size,
-                          rngs=rngs)
+                          pooling=config.pooling, rngs=rngs)
 
 
 class ImageRegressor(nnx.Module):

@@ -1,16 +1,19 @@
 """Which motion to render (``DataConfig.clips``), how many videos per training clip (``DataConfig.renders``), how to
-mirror them (``DataConfig.redraw_flips``) and how many steps to train the conditioning stage
-(``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head, the first
-stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the root) trained
-for each candidate (motion, renders, mirrors, steps) with each seed, and scored per clip on fresh validation renders
-of training clips (new cameras and shapes; never a test clip) and, with ``--data-root``, on renders of held-out motion
-(the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``, which no candidate trains on).
+mirror them (``DataConfig.redraw_flips``), how the backbone pools its last map (``BackboneConfig.pooling``) and how
+many steps to train the conditioning stage (``TrainConfig.image.steps``), chosen on validation: the conditioning stage
+(the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks give the
+conditioning error and the root) trained for each candidate (motion, renders, mirrors, pooling, steps) with each seed,
+and scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip) and, with
+``--data-root``, on renders of held-out motion (the CMU-Mocap benchmark's validation files,
+``dynamics.forecast_split``, which no candidate trains on).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_motion --motion shipped benchmark --renders 16 4 \\
         --data-root ../shared/data --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_flips --renders 16 --flips pixels redraw \\
+        --data-root ../shared/data --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_pooling --renders 16 --pooling mean flatten \\
         --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
@@ -25,7 +28,7 @@ from pathlib import Path
 from typing import Literal
 
 import geometry
-from dynamics import VALIDATION_DATA, TrainConfig, forecast_split
+from dynamics import VALIDATION_DATA, Pooling, TrainConfig, forecast_split
 from experiments import _cli
 from experiments.dynamics import training_configs
 from experiments.dynamics_study import Flips, run_renders_study
@@ -46,6 +49,9 @@ class Config:
     """Candidate ways of making the mirrored training variants: redraw, the mirrored people rendered anew, so that the
     renders' left and right part colours follow the mirrored labels (the recipe since 2026-12-07,
     dynamics.DataConfig.redraw_flips); pixels, the rendered frames mirrored (the recipe before)."""
+    pooling: tuple[Pooling, ...] = ("mean",)
+    """Candidate ways for the backbone to turn its last feature map into features: mean, the average over positions
+    (ResNet's, the recipe's); flatten, the whole map, which keeps where in the crop each feature fired."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -64,7 +70,7 @@ class Config:
 
     def __post_init__(self) -> None:
         for option, values in (("--motion", self.motion), ("--renders", self.renders), ("--flips", self.flips),
-                               ("--steps", self.steps), ("--seeds", self.seeds)):
+                               ("--pooling", self.pooling), ("--steps", self.steps), ("--seeds", self.seeds)):
             if values is not None and (not values or len(set(values)) != len(values)):
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
@@ -95,7 +101,7 @@ def main(config: Config) -> None:
         results = run_renders_study(out, workdir, base, {m: motions[m] for m in config.motion}, candidates,
                                     config.steps or (base.image.steps,), config.seeds, validation,
                                     geometry.stand_in_body_model(), held_out=held_out, flips=config.flips,
-                                    log=_cli.jsonl_log(out), progress=config.progress,
+                                    poolings=config.pooling, log=_cli.jsonl_log(out), progress=config.progress,
                                     data_workers=config.data_workers)
         report = (out / "results.md").read_text()
     print(report)

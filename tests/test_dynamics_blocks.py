@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from flax import nnx
+from jaxtyping import TypeCheckError
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
@@ -108,6 +109,23 @@ def test_backbone_shapes_jit_and_gradients():
     # Crops of another size than it was built for are refused (the global pooling would take any).
     with pytest.raises(ValueError, match="the backbone takes 64 x 64 crops, got 32 x 32"):
         backbone(jnp.asarray(uniform(2, (1, 32, 32, 3))))
+
+
+@pytest.mark.parametrize(("crop_size", "widths", "side"), [(64, (16, 32, 64, 128), 4), (50, (8, 16, 32), 7)])
+def test_backbone_flatten_pooling_keeps_the_last_map(crop_size, widths, side):
+    """``pooling="flatten"``: the head reads the whole last map (``side`` x ``side`` x ``widths[-1]``, the side
+    rounded up at every stride), and gives the features of that map flattened, not of its mean."""
+    backbone = build(lambda: ResNetBackbone(widths=widths, feature_dim=12, norm_groups=4, crop_size=crop_size,
+                                            pooling="flatten", rngs=nnx.Rngs(rbg_key(3))))
+    assert backbone.head.kernel.shape == (side * side * widths[-1], 12)
+    crops = jnp.asarray(uniform(4, (2, crop_size, crop_size, 3)))
+    last = jax.nn.relu(backbone.stem_norm(backbone.stem(2.0 * crops - 1.0)))
+    for block in backbone.blocks:
+        last = block(last)
+    assert last.shape == (2, side, side, widths[-1])
+    assert_allclose(backbone(crops), backbone.head(last.reshape(2, -1)), rtol=1e-6, atol=1e-6)
+    with pytest.raises((ValueError, TypeCheckError), match="pooling"):  # the type checker or, without it, the module
+        ResNetBackbone(widths=widths, pooling="max", rngs=nnx.Rngs(0))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -191,6 +191,8 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
                           (["--motion", "benchmark"], "--motion benchmark needs --data-root"),
                           (["--motion", "shipped", "shipped"], "--motion needs distinct values"),
                           (["--flips", "redraw", "redraw"], "--flips needs distinct values"),
+                          (["--pooling", "flatten", "flatten"], "--pooling needs distinct values"),
+                          (["--pooling", "max"], "--pooling"),
                           (["--motion", "shipped", "benchmark", "--renders", "16", "4", "2", "--data-root", "d"],
                            "--motion shipped benchmark needs one --renders count per motion, got [16, 4, 2]")):
         with pytest.raises(SystemExit):
@@ -199,15 +201,15 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
 
 
 def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_folder(tmp_path, monkeypatch):
-    """The loop over (motion and renders, steps, seed), with the training and the metrics replaced by fakes (tested
+    """The loop over (motion and renders, mirrors, pooling, steps, seed), with the training and the metrics replaced by fakes (tested
     in test_dynamics_train.py): each run's config carries its candidate, each validation group is scored on its
     rows, the held-out frames as one group, and each motion's mean pose is taken from its own training frames."""
     trained, posed = [], []
 
     def fake_train(config, workdir, body, *, resume, log, progress, data_workers):
         assert resume and Path(config.cache_dir) == tmp_path / "train" / "data_cache"
-        trained.append((config.data.clips, config.data.renders, config.data.redraw_flips, config.image.steps,
-                        config.seed, Path(workdir).name))
+        trained.append((config.data.clips, config.data.renders, config.data.redraw_flips, config.backbone.pooling,
+                        config.image.steps, config.seed, Path(workdir).name))
         log({"step": config.image.steps})
         return config.data.renders + config.image.steps / 1000 + config.seed / 10  # the "model": its candidate
 
@@ -229,21 +231,24 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     motions = {"shipped": ("02_01_walk",), "benchmark": ("02_01_walk", "02_03_run")}
     results = run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8), ("benchmark", 16)),
                                 (2000, 8000), (0, 1), validation, body=None, held_out=held_out,
-                                flips=("pixels", "redraw"), log=records.append, progress=False, data_workers=1)
-    assert trained == [(motions[m], r, f == "redraw", n, s,
-                        f"{m}_renders{r}_{f}_steps{n}_seed{s}")
+                                flips=("pixels", "redraw"), poolings=("mean", "flatten"), log=records.append,
+                                progress=False, data_workers=1)
+    assert trained == [(motions[m], r, f == "redraw", p, n, s,  # the mean keeps the names of the runs before pooling
+                        f"{m}_renders{r}_{f}{'_flatten' if p == 'flatten' else ''}_steps{n}_seed{s}")
                        for m, r in (("shipped", 8), ("benchmark", 16)) for f in ("pixels", "redraw")
-                       for n in (2000, 8000) for s in (0, 1)]
-    assert {"motion": "benchmark", "renders": 16, "flips": "redraw", "steps": 8000, "seed": 1, "step": 8000} in records
+                       for p in ("mean", "flatten") for n in (2000, 8000) for s in (0, 1)]
+    assert {"motion": "benchmark", "renders": 16, "flips": "redraw", "pooling": "flatten", "steps": 8000, "seed": 1,
+            "step": 8000} in records
     walk, salsa = validation.clips
     last = results["runs"][-1]
     assert last["metrics"][walk]["mpjpe_mm"] == pytest.approx(24.1 + 2) and last["metrics"]["all"]["mpjpe_mm"] == 27.1
     assert last["metrics"][_renders.HELD_OUT]["mpjpe_mm"] == pytest.approx(24.1 + 5)
-    assert results["summary"]["benchmark motion, renders 16, mirrors redrawn, steps 8000"][salsa]["mpjpe_mm"][
-        "mean"] == pytest.approx(25.05)
+    assert results["summary"]["benchmark motion, renders 16, mirrors redrawn, last map flattened, steps 8000"][salsa][
+        "mpjpe_mm"]["mean"] == pytest.approx(25.05)
     assert posed == [5, 5] and list(results["mean_pose"]) == ["shipped", "benchmark"]  # once per motion
     assert json.loads((tmp_path / "results.json").read_text())["config"]["steps"] == [2000, 8000]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["flips"] == ["pixels", "redraw"]
+    assert json.loads((tmp_path / "results.json").read_text())["config"]["poolings"] == ["mean", "flatten"]
     assert "| shipped motion, renders 8, pixels mirrored, steps 2000 |" in (tmp_path / "results.md").read_text()
     assert "| shipped motion, renders 8, mirrors redrawn, steps 2000 |" in (tmp_path / "results.md").read_text()
     assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()

@@ -1,7 +1,7 @@
-"""Which motion to render, how many videos per training clip, how to mirror them, and how many steps to train the
-conditioning stage on them, chosen on validation: the conditioning stage (backbone and HMR head,
-:func:`dynamics.train_conditioning`) trained for each candidate (motion, renders per clip, mirrors, steps) with several
-seeds, and scored
+"""Which motion to render, how many videos per training clip, how to mirror them, how the backbone pools its last
+map, and how many steps to train the conditioning stage on them, chosen on validation: the conditioning stage (backbone
+and HMR head, :func:`dynamics.train_conditioning`) trained for each candidate (motion, renders per clip, mirrors,
+pooling, steps) with several seeds, and scored
 (:func:`dynamics.conditioning_metrics`) per clip on fresh validation renders of training clips and, when given, on
 renders of held-out motion, beside the reference of a constant pose (:func:`dynamics.mean_pose_metrics`: each
 motion's mean training pose with the true root rotation).
@@ -10,7 +10,8 @@ More motion shows the networks more poses (the shipped clips hold about 1250 fra
 camera distances and body shapes for the same motion; two renders per clip (the default until 2026-11-28) left a
 depth bias on the two-person test take (docs/dynamics.md). More steps let the backbone, trained from scratch, see
 each render more often. Mirrors drawn anew keep the renders' left and right part colours on the left and right
-limbs, which mirrored pixels swap. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera
+limbs, which mirrored pixels swap. A flattened last map keeps where in the crop each feature fired, which the
+average over positions throws away. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera
 places, its depth over the true depth, and the root rotation's error."""
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import jax
 
 import geometry
 import training
-from dynamics import (DataConfig, TrainConfig, build_frames, conditioning_metrics, mean_local_pose, mean_pose_metrics,
+from dynamics import (DataConfig, Pooling, TrainConfig, build_frames, conditioning_metrics, mean_local_pose, mean_pose_metrics,
                       train_conditioning)
 from experiments._stats import mean_and_sd
 
@@ -47,12 +48,13 @@ HELD_OUT = "held-out motion"
 def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapping[str, tuple[str, ...]],
                       data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
-                      flips: Sequence[Flips] = ("redraw",), log: Callable[[dict], None], progress: bool,
-                      data_workers: int) -> dict:
+                      flips: Sequence[Flips] = ("redraw",), poolings: Sequence[Pooling] = ("mean",),
+                      log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
     training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
-    ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`), each number of conditioning ``steps`` and each of ``seeds``
-    in ``workdir/<motion>_renders<R>_<flips>_steps<N>_seed<S>`` (resumable; one render cache in
+    ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`), each of the backbone's ``poolings``
+    (:attr:`dynamics.BackboneConfig.pooling`), each number of conditioning ``steps`` and each of ``seeds`` in
+    ``workdir/<motion>_renders<R>_<flips>[_<pooling>]_steps<N>_seed<S>`` (resumable; one render cache in
     ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion
     no candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
@@ -65,14 +67,18 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
     if held_out is not None:
         groups[HELD_OUT] = build_frames(held_out, body, cache_dir, progress, data_workers)
     runs, references = [], {}
-    for (motion, count), flip, stage_steps, seed in itertools.product(data, flips, steps, seeds):
+    for (motion, count), flip, pooling, stage_steps, seed in itertools.product(data, flips, poolings, steps, seeds):
         frames_config = dataclasses.replace(base.data, clips=motions[motion], renders=count,
                                             redraw_flips=flip == "redraw")
         config = dataclasses.replace(base, data=frames_config, image=dataclasses.replace(base.image, steps=stage_steps),
+                                     backbone=dataclasses.replace(base.backbone, pooling=pooling),
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
-        candidate = {"motion": motion, "renders": count, "flips": flip, "steps": stage_steps, "seed": seed}
-        model = train_conditioning(config, workdir / f"{motion}_renders{count}_{flip}_steps{stage_steps}_seed{seed}",
-                                   body, resume=True, progress=progress, data_workers=data_workers,
+        candidate = {"motion": motion, "renders": count, "flips": flip, "pooling": pooling, "steps": stage_steps,
+                     "seed": seed}
+        # The mean, ResNet's pooling, keeps the folder names of the runs from before the option (they resume).
+        name = f"{motion}_renders{count}_{flip}{'' if pooling == 'mean' else '_' + pooling}_steps{stage_steps}"
+        model = train_conditioning(config, workdir / f"{name}_seed{seed}", body, resume=True, progress=progress,
+                                   data_workers=data_workers,
                                    log=lambda record, candidate=candidate: log({**candidate, **record}))
         metrics = {group: conditioning_metrics(body, model, frames) for group, frames in groups.items()}
         runs.append({**candidate, "metrics": metrics})
@@ -81,8 +87,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
             pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
             references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
     results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
-                          "flips": list(flips), "steps": list(steps), "seeds": list(seeds), "validation": validation,
-                          "held_out": held_out},
+                          "flips": list(flips), "poolings": list(poolings), "steps": list(steps), "seeds": list(seeds),
+                          "validation": validation, "held_out": held_out},
                "runs": runs, "summary": renders_summary(runs), "mean_pose": references,
                "seconds": round(time.perf_counter() - started, 1)}
     results = training.to_jsonable(results)
@@ -92,9 +98,11 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
 
 
 def _candidate_name(run: dict) -> str:
-    """A candidate's row label: its motion, renders per clip, mirrors (where the run says) and conditioning steps."""
+    """A candidate's row label: its motion, renders per clip, mirrors and pooling (where the run says) and
+    conditioning steps."""
     mirrors = {"pixels": ", pixels mirrored", "redraw": ", mirrors redrawn"}.get(run.get("flips"), "")
-    return f"{run['motion']} motion, renders {run['renders']}{mirrors}, steps {run['steps']}"
+    pooling = {"flatten": ", last map flattened"}.get(run.get("pooling"), "")
+    return f"{run['motion']} motion, renders {run['renders']}{mirrors}{pooling}, steps {run['steps']}"
 
 
 def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
