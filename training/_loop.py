@@ -129,8 +129,8 @@ def check_same_run(workdir: str | Path, config: Any, independent_of: tuple[str, 
     if config_path.is_file():
         differences = _config_differences(json.loads(config_path.read_text()), config, independent_of)
         if differences:
-            raise ValueError(f"{config_path} differs from the config passed in {', '.join(differences[:4])}: "
-                             "resume only the same run")
+            raise ValueError(f"{config_path} records a run of another config (it differs in "
+                             f"{', '.join(differences[:4])}): resume only the same run")
 
 
 def run_training(
