@@ -111,7 +111,9 @@ class TrainConfig:
 
     data: DataConfig = DataConfig()
     validation: DataConfig = VALIDATION_DATA
-    backbone: BackboneConfig = BackboneConfig()
+    backbone: BackboneConfig = BackboneConfig(pooling="flatten")
+    """The last map flattened since 2026-12-07, chosen on validation (docs/dynamics.md); BackboneConfig's own
+    default stays ResNet's mean, what the backbones saved before the option were built with."""
     model: PHDTConfig = PHDTConfig()
     losses: LossWeights = LossWeights()
     image: StageConfig = StageConfig(steps=8000, batch_size=32, learning_rate=1e-3)
@@ -366,7 +368,8 @@ def _floats(metrics: dict[str, jax.Array]) -> dict[str, float]:
 def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
     """The backbone and PHD+T written by :func:`train` to ``<workdir>/model`` (or a shipped copy of it)."""
     path = Path(path)
-    # Models saved before BackboneConfig.crop_size took the default 64 px crops.
+    # Backbones saved before BackboneConfig.crop_size took the default 64 px crops, and those saved before
+    # BackboneConfig.pooling averaged their last map (the field's default).
     backbone = training.load_model_state(path / "backbone",
                                          lambda fields: _backbone_from_config(BackboneConfig(**fields), nnx.Rngs(0)))
     phdt = training.load_model_state(path / "phdt", lambda fields: PHDT(PHDTConfig(**fields), rngs=nnx.Rngs(0)))

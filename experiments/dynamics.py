@@ -21,8 +21,8 @@ import dataclasses
 from pathlib import Path
 
 import geometry
-from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, BackboneConfig, EvalConfig, StageConfig, TrainConfig,
-                      TransformerTrainConfig, load_trained, load_transformers, train, train_all)
+from dynamics import (SHIPPED_MODEL, SHIPPED_TRANSFORMERS, EvalConfig, StageConfig, TrainConfig, TransformerTrainConfig,
+                      load_trained, load_transformers, train, train_all)
 from experiments import _cli
 from experiments.dynamics_study import run_experiment
 
@@ -67,7 +67,7 @@ def training_configs(recipe: str, seed: int, quick: bool, data_root: str | Path 
         ar = StageConfig(steps=3_000, batch_size=32, learning_rate=3e-4, warmup_steps=150)
         phdt = dataclasses.replace(
             phdt, data=data, validation=dataclasses.replace(phdt.validation, crop_size=crop),
-            backbone=BackboneConfig(widths=(32, 64, 128, 256), blocks_per_stage=2, crop_size=crop),
+            backbone=dataclasses.replace(phdt.backbone, widths=(32, 64, 128, 256), blocks_per_stage=2, crop_size=crop),
             image=StageConfig(steps=20_000, batch_size=64, learning_rate=1e-3, warmup_steps=500),
             movie=movie, ar=ar, checkpoint_interval=500, validation_interval=1_000)
         transformers = dataclasses.replace(

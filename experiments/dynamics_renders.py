@@ -49,9 +49,10 @@ class Config:
     """Candidate ways of making the mirrored training variants: redraw, the mirrored people rendered anew, so that the
     renders' left and right part colours follow the mirrored labels (the recipe since 2026-12-07,
     dynamics.DataConfig.redraw_flips); pixels, the rendered frames mirrored (the recipe before)."""
-    pooling: tuple[Pooling, ...] = ("mean",)
-    """Candidate ways for the backbone to turn its last feature map into features: mean, the average over positions
-    (ResNet's, the recipe's); flatten, the whole map, which keeps where in the crop each feature fired."""
+    pooling: tuple[Pooling, ...] = ("flatten",)
+    """Candidate ways for the backbone to turn its last feature map into features: flatten, the whole map, which keeps
+    where in the crop each feature fired (the recipe since 2026-12-07, dynamics.TrainConfig().backbone); mean, the
+    average over positions (ResNet's, the recipe before)."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)

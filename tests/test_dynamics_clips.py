@@ -127,6 +127,7 @@ def test_the_large_recipe_is_consistent_and_renders_the_benchmark_train_split(da
     phdt, transformers = dynamics.training_configs("large", 3, quick, data_root)
     assert phdt.seed == transformers.seed == 3 and phdt.data == transformers.data
     assert phdt.backbone.crop_size == phdt.data.crop_size == transformers.validation.crop_size == 128
+    assert small[0].backbone.pooling == phdt.backbone.pooling == "flatten"  # chosen on validation, docs/dynamics.md
     expmap = _cli.expmap_clips(data_root, "train")
     expected = dynamics.QUICK_CLIPS if quick else TRAIN_CLIPS + expmap
     assert phdt.data.clips == expected and len(expmap) == 72

@@ -15,6 +15,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from flax import nnx
 from numpy.testing import assert_allclose
 
 import dynamics
@@ -277,6 +278,22 @@ def test_resume_after_a_kill_in_a_later_stage_is_bit_identical(full_run, tmp_pat
         assert loaded_phdt.config == config.model and loaded_backbone.crop_size == 16
     # Saved before the backbone's config held its crop size: the shipped backbone takes the default 64 px.
     assert dynamics.load_trained(dynamics.SHIPPED_MODEL)[0].crop_size == 64
+
+
+def test_a_backbone_saved_before_the_pooling_option_loads_as_the_mean(tmp_path):
+    """The recipe flattens the last map; a backbone whose config.json predates ``BackboneConfig.pooling`` was
+    built with ResNet's mean (the field's default) and loads so, with its own weights."""
+    assert dynamics.TrainConfig().backbone.pooling == "flatten" and dynamics.BackboneConfig().pooling == "mean"
+    config = dynamics.BackboneConfig(widths=(4, 8), feature_dim=16, crop_size=16)
+    saved = dynamics.ResNetBackbone(config.widths, feature_dim=16, crop_size=16, rngs=nnx.Rngs(1))
+    shutil.copytree(dynamics.SHIPPED_MODEL / "phdt", tmp_path / "phdt")  # load_trained reads both networks
+    training.save_model(tmp_path / "backbone", config, nnx.state(saved))
+    stored = json.loads((tmp_path / "backbone" / "config.json").read_text())
+    assert stored.pop("pooling") == "mean"
+    (tmp_path / "backbone" / "config.json").write_text(json.dumps(stored))
+    loaded, _ = dynamics.load_trained(tmp_path)
+    assert loaded.pooling == "mean"
+    assert_same_parameters(loaded, saved)
 
 
 def test_batch_size_must_divide_by_devices(cache_dir, monkeypatch, tmp_path):

@@ -48,7 +48,7 @@ HELD_OUT = "held-out motion"
 def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapping[str, tuple[str, ...]],
                       data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
-                      flips: Sequence[Flips] = ("redraw",), poolings: Sequence[Pooling] = ("mean",),
+                      flips: Sequence[Flips] = ("redraw",), poolings: Sequence[Pooling] = ("flatten",),
                       log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
     training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
@@ -123,7 +123,7 @@ def renders_markdown(results: dict) -> str:
     mean-pose reference."""
     config, validation = results["config"], results["config"]["validation"]
     held_out = config.get("held_out")
-    lines = ["# Motion, renders per training clip and conditioning steps, chosen on validation", "",
+    lines = ["# Motion, renders per training clip, mirrors, pooling and conditioning steps, chosen on validation", "",
              f"The conditioning stage trained for each candidate with seeds {config['seeds']} (mean ± sample "
              f"sd over them), scored on {validation['renders']} fresh render(s) of each of {validation['clips']} "
              f"(seed {validation['seed']})"
