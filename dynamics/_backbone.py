@@ -3,14 +3,14 @@
 The thesis uses HMR's frozen ResNet-50 on 224 x 224 crops (2048 features, precomputed; spec section 3). This is
 the same family at a fraction of the cost: a stride-2 3x3 stem, stages of residual basic blocks (each stage after
 the first halves the resolution), then global average pooling (ResNet's) or the last feature map flattened, and a
-linear map to ``feature_dim``. GroupNorm replaces
-batch norm, so the network has no batch statistics and no mutable state: training and inference compute the same
-function, and per-person batches of any size (even one crop) are fine.
+linear map to ``feature_dim``. GroupNorm replaces batch norm, so the network has no batch statistics and no mutable
+state: training and inference compute the same function, and per-person batches of any size (even one crop) are
+fine.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 import jax
 import jax.numpy as jnp
@@ -78,8 +78,8 @@ class ResNetBackbone(nnx.Module):
     ) -> None:
         if not widths or blocks_per_stage < 1:
             raise ValueError(f"need at least one stage and one block per stage, got {widths}, {blocks_per_stage}")
-        if pooling not in ("mean", "flatten"):
-            raise ValueError(f"pooling must be 'mean' or 'flatten', got {pooling!r}")
+        if pooling not in get_args(Pooling):
+            raise ValueError(f"pooling must be one of {get_args(Pooling)}, got {pooling!r}")
         self.feature_dim = feature_dim
         self.crop_size = crop_size
         self.pooling = pooling

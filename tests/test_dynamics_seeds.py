@@ -201,9 +201,10 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
 
 
 def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_folder(tmp_path, monkeypatch):
-    """The loop over (motion and renders, mirrors, pooling, steps, seed), with the training and the metrics replaced by fakes (tested
-    in test_dynamics_train.py): each run's config carries its candidate, each validation group is scored on its
-    rows, the held-out frames as one group, and each motion's mean pose is taken from its own training frames."""
+    """The loop over (motion and renders, mirrors, pooling, steps, seed), with the training and the metrics replaced
+    by fakes (tested in test_dynamics_train.py): each run's config carries its candidate, each validation group is
+    scored on its rows, the held-out frames as one group, and each motion's mean pose is taken from its own training
+    frames."""
     trained, posed = [], []
 
     def fake_train(config, workdir, body, *, resume, log, progress, data_workers):

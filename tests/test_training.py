@@ -61,8 +61,8 @@ def test_resume_takes_a_field_added_since_at_its_default_and_names_what_differs(
     (tmp_path / "config.json").write_text(json.dumps(stored))
     for config, names in ((_Nested(), "stage.clip"), (_Nested(stage=_Stage(rate=0.1, clip=None), name="b"),
                                                       "stage.rate, name")):
-        with pytest.raises(ValueError,
-                           match=rf"config\.json records a run of another config \(it differs in {names}\): resume only"):
+        with pytest.raises(ValueError, match=rf"config\.json records a run of another config \(it differs in "
+                                             rf"{names}\): resume only"):
             _run(tmp_path, config=config, resume=True)
     (tmp_path / "config.json").write_text(json.dumps({**stored, "removed": 1}))
     with pytest.raises(ValueError, match=r"differs in removed\):"):

@@ -28,8 +28,8 @@ import jax
 
 import geometry
 import training
-from dynamics import (DataConfig, Pooling, TrainConfig, build_frames, conditioning_metrics, mean_local_pose, mean_pose_metrics,
-                      train_conditioning)
+from dynamics import (DataConfig, Pooling, TrainConfig, build_frames, conditioning_metrics, mean_local_pose,
+                      mean_pose_metrics, train_conditioning)
 from experiments._stats import mean_and_sd
 
 from ._report import digits
