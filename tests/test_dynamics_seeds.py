@@ -250,8 +250,10 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     assert json.loads((tmp_path / "results.json").read_text())["config"]["steps"] == [2000, 8000]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["flips"] == ["pixels", "redraw"]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["poolings"] == ["mean", "flatten"]
-    assert "| shipped motion, renders 8, pixels mirrored, steps 2000 |" in (tmp_path / "results.md").read_text()
-    assert "| shipped motion, renders 8, mirrors redrawn, steps 2000 |" in (tmp_path / "results.md").read_text()
+    assert "| shipped motion, renders 8, pixels mirrored, last map averaged, steps 2000 |" in (
+        tmp_path / "results.md").read_text()
+    assert "| shipped motion, renders 8, mirrors redrawn, last map averaged, steps 2000 |" in (
+        tmp_path / "results.md").read_text()
     assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()
 
 

@@ -101,7 +101,7 @@ def _candidate_name(run: dict) -> str:
     """A candidate's row label: its motion, renders per clip, mirrors and pooling (where the run says) and
     conditioning steps."""
     mirrors = {"pixels": ", pixels mirrored", "redraw": ", mirrors redrawn"}.get(run.get("flips"), "")
-    pooling = {"flatten": ", last map flattened"}.get(run.get("pooling"), "")
+    pooling = {"mean": ", last map averaged", "flatten": ", last map flattened"}.get(run.get("pooling"), "")
     return f"{run['motion']} motion, renders {run['renders']}{mirrors}{pooling}, steps {run['steps']}"
 
 
