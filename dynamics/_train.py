@@ -378,16 +378,20 @@ def load_trained(path: str | Path) -> tuple[ResNetBackbone, PHDT]:
 
 @partial(jax.jit, static_argnums=0)
 def _conditioning_sums(graphdef: nnx.GraphDef, state, body: geometry.BodyModel, rows: Frames) -> jax.Array:
-    """Sums over ``rows`` of :func:`conditioning_metrics`' five per-frame values (metres, metres, metres, a ratio,
-    degrees)."""
+    """Sums over ``rows`` of :func:`conditioning_metrics`' six per-frame values (metres, metres, metres, a ratio,
+    degrees, metres)."""
     model = nnx.merge(graphdef, state)
     params = model.hmr(model.backbone(_crops(rows)))
     joints = params_to_joints(body, params, jnp.zeros_like(params.camera))
     root = crop_roots(params, rows.boxes, rows.K)
     orientation = geometry.geodesic_distance(geometry.rotation_6d_to_matrix(params.rot6d[:, 0]), rows.rotations[:, 0])
+    true_rotation = params._replace(rot6d=params.rot6d.at[:, 0].set(
+        geometry.matrix_to_rotation_6d(rows.rotations[:, 0]).astype(params.rot6d.dtype)))
+    local_error = geometry.mpjpe_root_relative(params_to_joints(body, true_rotation, jnp.zeros_like(params.camera)),
+                                               rows.joints3d, 0)
     return jnp.concatenate([_pose_error_sums(joints, rows), jnp.stack([
         jnp.sum(jnp.linalg.norm(root - rows.root, axis=-1)), jnp.sum(root[:, 2] / rows.root[:, 2]),
-        jnp.sum(jnp.degrees(orientation))])])
+        jnp.sum(jnp.degrees(orientation)), jnp.sum(local_error)])])
 
 
 def _pose_error_sums(joints: Float[Array, "B 24 3"], rows: Frames) -> Float[Array, "2"]:
@@ -412,14 +416,17 @@ def conditioning_metrics(body: geometry.BodyModel, model: ImageRegressor, frames
     """Stage 1's network on single frames (``batch_size`` at a time, one compilation per batch shape):
     root-relative MPJPE (``mpjpe_mm``), PA-MPJPE (``pa_mpjpe_mm``), the error of the pelvis its crop camera places
     (``root_mm``), the mean ratio of that pelvis' depth to the true one (``depth_ratio``; below 1: people placed
-    too near the camera), and the angle between the regressed and the true root rotation in the camera frame
-    (``orientation_deg``, the body's facing and lean: the part of the MPJPE a constant pose with the true root
-    rotation, :func:`mean_pose_metrics`, does not pay)."""
+    too near the camera), the angle between the regressed and the true root rotation in the camera frame
+    (``orientation_deg``, the body's facing and lean), and the root-relative MPJPE with the true root rotation in
+    place of the regressed one (``true_rotation_mpjpe_mm``: the error of the regressed local pose and shape alone,
+    what :func:`mean_pose_metrics`' constant pose, given the true root rotation, is to be compared with; the
+    difference to ``mpjpe_mm`` is what a perfect root rotation would save)."""
     graphdef, state = nnx.split(model)
-    mpjpe, pa_mpjpe, root, ratio, orientation = _batched_means(
+    mpjpe, pa_mpjpe, root, ratio, orientation, true_rotation_mpjpe = _batched_means(
         partial(_conditioning_sums, graphdef, state, body), frames, batch_size)
     return {"mpjpe_mm": 1000.0 * mpjpe, "pa_mpjpe_mm": 1000.0 * pa_mpjpe, "root_mm": 1000.0 * root,
-            "depth_ratio": ratio, "orientation_deg": orientation}
+            "depth_ratio": ratio, "orientation_deg": orientation,
+            "true_rotation_mpjpe_mm": 1000.0 * true_rotation_mpjpe}
 
 
 def mean_local_pose(rotations: Float[ArrayLike, "F 24 3 3"]) -> Float[np.ndarray, "24 3 3"]:

@@ -213,6 +213,12 @@ def test_the_conditioning_stage_alone_is_train_s_first_and_its_metrics_match_a_p
     regressed = np.asarray(geometry.rotation_6d_to_matrix(params.rot6d[:, 0]), np.float64)
     angles = Rotation.from_matrix(np.swapaxes(regressed, -1, -2) @ rows.rotations[:, 0]).magnitude()
     assert metrics["orientation_deg"] == pytest.approx(np.degrees(angles).mean(), rel=1e-4)
+    # The regressed local pose and shape under the true root rotation, posed frame by frame from the matrices.
+    local = np.asarray(geometry.rotation_6d_to_matrix(params.rot6d)).copy()
+    local[:, 0] = rows.rotations[:, 0]
+    posed = np.array([geometry.body_joints(BODY, r, b, np.zeros(3, np.float32)) for r, b in zip(local, params.betas)])
+    true_rotation_mpjpe = np.linalg.norm(relative(posed) - relative(rows.joints3d), axis=-1).mean()
+    assert metrics["true_rotation_mpjpe_mm"] == pytest.approx(1000 * true_rotation_mpjpe, rel=1e-4)
 
 
 def test_the_mean_local_pose_is_scipy_s_chordal_mean_of_each_joint_s_rotations():

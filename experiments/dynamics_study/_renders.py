@@ -12,7 +12,8 @@ depth bias on the two-person test take (docs/dynamics.md). More steps let the ba
 each render more often. Mirrors drawn anew keep the renders' left and right part colours on the left and right
 limbs, which mirrored pixels swap. A flattened last map keeps where in the crop each feature fired, which the
 average over positions throws away. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera
-places, its depth over the true depth, and the root rotation's error."""
+places, its depth over the true depth, the root rotation's error, and the MPJPE with the true root rotation put in
+(what the local pose and shape miss)."""
 
 from __future__ import annotations
 
@@ -38,7 +39,8 @@ from ._seeds import mean_sd_cell
 __all__ = ["Flips", "renders_markdown", "renders_summary", "run_renders_study"]
 
 _METRICS = {"mpjpe_mm": "MPJPE (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)", "root_mm": "root (mm)",
-            "depth_ratio": "depth / true depth", "orientation_deg": "root rotation (deg)"}
+            "depth_ratio": "depth / true depth", "orientation_deg": "root rotation (deg)",
+            "true_rotation_mpjpe_mm": "MPJPE with the true root rotation (mm)"}
 Flips = Literal["pixels", "redraw"]
 """How the mirrored training variants are made: their pixels mirrored, or the mirrored people rendered anew."""
 HELD_OUT = "held-out motion"
