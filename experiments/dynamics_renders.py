@@ -45,14 +45,15 @@ class Config:
     renders: tuple[int, ...] = (2, 4, 8)
     """Candidate videos per training clip (the shipped models: 16, chosen by this study; 8 and 2 before). With
     several motions, one count per motion, in order (a motion's videos per clip, not a grid)."""
-    flips: tuple[Flips, ...] = ("redraw",)
+    flips: tuple[Flips, ...] | None = None
     """Candidate ways of making the mirrored training variants: redraw, the mirrored people rendered anew, so that the
     renders' left and right part colours follow the mirrored labels (the recipe since 2026-12-07,
-    dynamics.DataConfig.redraw_flips); pixels, the rendered frames mirrored (the recipe before)."""
-    pooling: tuple[Pooling, ...] = ("flatten",)
+    dynamics.DataConfig.redraw_flips); pixels, the rendered frames mirrored (the recipe before). Default: the
+    recipe's."""
+    pooling: tuple[Pooling, ...] | None = None
     """Candidate ways for the backbone to turn its last feature map into features: flatten, the whole map, which keeps
     where in the crop each feature fired (the recipe since 2026-12-07, dynamics.TrainConfig().backbone); mean, the
-    average over positions (ResNet's, the recipe before)."""
+    average over positions (ResNet's, the recipe before). Default: the recipe's."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)

@@ -255,5 +255,10 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     assert "| shipped motion, renders 8, mirrors redrawn, last map averaged, steps 2000 |" in (
         tmp_path / "results.md").read_text()
     assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()
+    # Without mirrors or poolings given, the base's: the recipe's redrawn mirrors and flattened map.
+    trained.clear()
+    run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8),), (2000,), (0,), validation,
+                      body=None, log=records.append, progress=False, data_workers=1)
+    assert trained == [(motions["shipped"], 8, True, "flatten", 2000, 0, "shipped_renders8_redraw_flatten_steps2000_seed0")]
 
 
