@@ -259,6 +259,7 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     trained.clear()
     run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8),), (2000,), (0,), validation,
                       body=None, log=records.append, progress=False, data_workers=1)
-    assert trained == [(motions["shipped"], 8, True, "flatten", 2000, 0, "shipped_renders8_redraw_flatten_steps2000_seed0")]
+    assert trained == [(motions["shipped"], 8, True, "flatten", 2000, 0,
+                        "shipped_renders8_redraw_flatten_steps2000_seed0")]
 
 

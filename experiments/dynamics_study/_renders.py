@@ -53,12 +53,12 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
                       flips: Sequence[Flips] | None = None, poolings: Sequence[Pooling] | None = None,
                       log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
-    training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or
-    ``redraw``, :attr:`dynamics.DataConfig.redraw_flips`; None: ``base``'s), each of the backbone's ``poolings``
-    (:attr:`dynamics.BackboneConfig.pooling`; None: ``base``'s), each number of conditioning ``steps`` and each of ``seeds`` in
-    ``workdir/<motion>_renders<R>_<flips>[_<pooling>]_steps<N>_seed<S>`` (resumable; one render cache in
-    ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion
-    no candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
+    training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or ``redraw``,
+    :attr:`dynamics.DataConfig.redraw_flips`; None: ``base``'s), each of the backbone's ``poolings``
+    (:attr:`dynamics.BackboneConfig.pooling`; None: ``base``'s), each number of conditioning ``steps`` and each of
+    ``seeds`` in ``workdir/<motion>_renders<R>_<flips>[_<pooling>]_steps<N>_seed<S>`` (resumable; one render cache in
+    ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no
+    candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
     flips = flips or ("redraw" if base.data.redraw_flips else "pixels",)
     poolings = poolings or (base.backbone.pooling,)
