@@ -1,11 +1,12 @@
 """Which motion to render (``DataConfig.clips``), how many videos per training clip (``DataConfig.renders``), how to
-mirror them (``DataConfig.redraw_flips``), how the backbone pools its last map (``BackboneConfig.pooling``) and how
-many steps to train the conditioning stage (``TrainConfig.image.steps``), chosen on validation: the conditioning stage
-(the crop backbone and HMR head, the first stage of ``python -m experiments.dynamics --train``, whose networks give the
-conditioning error and the root) trained for each candidate (motion, renders, mirrors, pooling, steps) with each seed,
-and scored per clip on fresh validation renders of training clips (new cameras and shapes; never a test clip) and, with
-``--data-root``, on renders of held-out motion (the CMU-Mocap benchmark's validation files,
-``dynamics.forecast_split``, which no candidate trains on).
+mirror them (``DataConfig.redraw_flips``), how the backbone pools its last map (``BackboneConfig.pooling``), how much
+dropout the HMR head trains with (``PHDTConfig.hmr_dropout``) and how many steps to train the conditioning stage
+(``TrainConfig.image.steps``), chosen on validation: the conditioning stage (the crop backbone and HMR head, the first
+stage of ``python -m experiments.dynamics --train``, whose networks give the conditioning error and the root) trained
+for each candidate (motion, renders, mirrors, pooling, head dropout, steps) with each seed, and scored per clip on fresh
+validation renders of training clips (new cameras and shapes; never a test clip) and, with ``--data-root``, on renders
+of held-out motion (the CMU-Mocap benchmark's validation files, ``dynamics.forecast_split``, which no candidate trains
+on).
 
     python -m experiments.dynamics_renders --out runs/dynamics_renders --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_steps --renders 16 --steps 2000 8000 --data-workers 2
@@ -14,6 +15,8 @@ and scored per clip on fresh validation renders of training clips (new cameras a
     python -m experiments.dynamics_renders --out runs/dynamics_flips --renders 16 --flips pixels redraw \\
         --data-root ../shared/data --data-workers 2
     python -m experiments.dynamics_renders --out runs/dynamics_pooling --renders 16 --pooling mean flatten \\
+        --data-root ../shared/data --data-workers 2
+    python -m experiments.dynamics_renders --out runs/dynamics_dropout --renders 16 --hmr-dropout 0.5 0 \\
         --data-root ../shared/data --data-workers 2
 
 Writes OUT/results.json, results.md, log.jsonl and run.json, replacing OUT's previous outputs as a whole; the
@@ -54,6 +57,9 @@ class Config:
     """Candidate ways for the backbone to turn its last feature map into features: flatten, the whole map, which keeps
     where in the crop each feature fired (the recipe since 2026-12-07, dynamics.TrainConfig().backbone); mean, the
     average over positions (ResNet's, the recipe before). Default: the recipe's."""
+    hmr_dropout: tuple[float, ...] | None = None
+    """Candidate dropout rates of the HMR head's two hidden layers in training (dynamics.PHDTConfig.hmr_dropout).
+    Default: the recipe's (0.5, HMR's)."""
     steps: tuple[int, ...] | None = None
     """Candidate steps of the conditioning stage (default: the recipe's, dynamics.TrainConfig().image.steps)."""
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -72,7 +78,8 @@ class Config:
 
     def __post_init__(self) -> None:
         for option, values in (("--motion", self.motion), ("--renders", self.renders), ("--flips", self.flips),
-                               ("--pooling", self.pooling), ("--steps", self.steps), ("--seeds", self.seeds)):
+                               ("--pooling", self.pooling), ("--hmr-dropout", self.hmr_dropout),
+                               ("--steps", self.steps), ("--seeds", self.seeds)):
             if values is not None and (not values or len(set(values)) != len(values)):
                 raise ValueError(f"{option} needs distinct values, got {list(values)}")
         if min(self.renders) < 1 or self.validation_renders < 1 or self.data_workers < 1:
@@ -83,6 +90,8 @@ class Config:
         if "benchmark" in self.motion and self.data_root is None:
             raise ValueError("--motion benchmark needs --data-root (the folder holding cmu_expmap/)")
         warmup = TrainConfig().image.warmup_steps
+        if self.hmr_dropout and not all(0 <= rate < 1 for rate in self.hmr_dropout):
+            raise ValueError(f"--hmr-dropout rates must be in [0, 1), got {list(self.hmr_dropout)}")
         if self.steps and min(self.steps) <= warmup:
             raise ValueError(f"--steps must exceed the stage's {warmup} warm-up steps, got {list(self.steps)}")
 
@@ -103,8 +112,8 @@ def main(config: Config) -> None:
         results = run_renders_study(out, workdir, base, {m: motions[m] for m in config.motion}, candidates,
                                     config.steps or (base.image.steps,), config.seeds, validation,
                                     geometry.stand_in_body_model(), held_out=held_out, flips=config.flips,
-                                    poolings=config.pooling, log=_cli.jsonl_log(out), progress=config.progress,
-                                    data_workers=config.data_workers)
+                                    poolings=config.pooling, dropouts=config.hmr_dropout, log=_cli.jsonl_log(out),
+                                    progress=config.progress, data_workers=config.data_workers)
         report = (out / "results.md").read_text()
     print(report)
     print(f"wrote {config.out}/results.json, results.md ({results['seconds']} s)")

@@ -193,6 +193,8 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
                           (["--flips", "redraw", "redraw"], "--flips needs distinct values"),
                           (["--pooling", "flatten", "flatten"], "--pooling needs distinct values"),
                           (["--pooling", "max"], "--pooling"),
+                          (["--hmr-dropout", "0.5", "0.5"], "--hmr-dropout needs distinct values"),
+                          (["--hmr-dropout", "1"], "--hmr-dropout rates must be in [0, 1), got [1.0]"),
                           (["--motion", "shipped", "benchmark", "--renders", "16", "4", "2", "--data-root", "d"],
                            "--motion shipped benchmark needs one --renders count per motion, got [16, 4, 2]")):
         with pytest.raises(SystemExit):
@@ -201,16 +203,16 @@ def test_the_renders_study_summarises_each_candidate_over_its_seeds_and_refuses_
 
 
 def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_folder(tmp_path, monkeypatch):
-    """The loop over (motion and renders, mirrors, pooling, steps, seed), with the training and the metrics replaced
-    by fakes (tested in test_dynamics_train.py): each run's config carries its candidate, each validation group is
-    scored on its rows, the held-out frames as one group, and each motion's mean pose is taken from its own training
-    frames."""
+    """The loop over (motion and renders, mirrors, pooling, head dropout, steps, seed), with the training and the
+    metrics replaced by fakes (tested in test_dynamics_train.py): each run's config carries its candidate, each
+    validation group is scored on its rows, the held-out frames as one group, and each motion's mean pose is taken from
+    its own training frames."""
     trained, posed = [], []
 
     def fake_train(config, workdir, body, *, resume, log, progress, data_workers):
         assert resume and Path(config.cache_dir) == tmp_path / "train" / "data_cache"
         trained.append((config.data.clips, config.data.renders, config.data.redraw_flips, config.backbone.pooling,
-                        config.image.steps, config.seed, Path(workdir).name))
+                        config.model.hmr_dropout, config.image.steps, config.seed, Path(workdir).name))
         log({"step": config.image.steps})
         return config.data.renders + config.image.steps / 1000 + config.seed / 10  # the "model": its candidate
 
@@ -232,34 +234,37 @@ def test_the_renders_study_trains_each_candidate_and_seed_in_its_own_resumable_f
     motions = {"shipped": ("02_01_walk",), "benchmark": ("02_01_walk", "02_03_run")}
     results = run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8), ("benchmark", 16)),
                                 (2000, 8000), (0, 1), validation, body=None, held_out=held_out,
-                                flips=("pixels", "redraw"), poolings=("mean", "flatten"), log=records.append,
-                                progress=False, data_workers=1)
-    assert trained == [(motions[m], r, f == "redraw", p, n, s,  # the mean keeps the names of the runs before pooling
-                        f"{m}_renders{r}_{f}{'_flatten' if p == 'flatten' else ''}_steps{n}_seed{s}")
+                                flips=("pixels", "redraw"), poolings=("mean", "flatten"), dropouts=(0.5, 0.0),
+                                log=records.append, progress=False, data_workers=1)
+    # The mean pooling and the base's dropout keep the names of the runs from before those options.
+    assert trained == [(motions[m], r, f == "redraw", p, d, n, s,
+                        f"{m}_renders{r}_{f}{'_flatten' if p == 'flatten' else ''}{'_dropout0' if d == 0 else ''}"
+                        f"_steps{n}_seed{s}")
                        for m, r in (("shipped", 8), ("benchmark", 16)) for f in ("pixels", "redraw")
-                       for p in ("mean", "flatten") for n in (2000, 8000) for s in (0, 1)]
-    assert {"motion": "benchmark", "renders": 16, "flips": "redraw", "pooling": "flatten", "steps": 8000, "seed": 1,
-            "step": 8000} in records
+                       for p in ("mean", "flatten") for d in (0.5, 0.0) for n in (2000, 8000) for s in (0, 1)]
+    assert {"motion": "benchmark", "renders": 16, "flips": "redraw", "pooling": "flatten", "hmr_dropout": 0.0,
+            "steps": 8000, "seed": 1, "step": 8000} in records
     walk, salsa = validation.clips
     last = results["runs"][-1]
     assert last["metrics"][walk]["mpjpe_mm"] == pytest.approx(24.1 + 2) and last["metrics"]["all"]["mpjpe_mm"] == 27.1
     assert last["metrics"][_renders.HELD_OUT]["mpjpe_mm"] == pytest.approx(24.1 + 5)
-    assert results["summary"]["benchmark motion, renders 16, mirrors redrawn, last map flattened, steps 8000"][salsa][
-        "mpjpe_mm"]["mean"] == pytest.approx(25.05)
+    assert results["summary"]["benchmark motion, renders 16, mirrors redrawn, last map flattened, head dropout 0, "
+                              "steps 8000"][salsa]["mpjpe_mm"]["mean"] == pytest.approx(25.05)
     assert posed == [5, 5] and list(results["mean_pose"]) == ["shipped", "benchmark"]  # once per motion
     assert json.loads((tmp_path / "results.json").read_text())["config"]["steps"] == [2000, 8000]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["flips"] == ["pixels", "redraw"]
     assert json.loads((tmp_path / "results.json").read_text())["config"]["poolings"] == ["mean", "flatten"]
-    assert "| shipped motion, renders 8, pixels mirrored, last map averaged, steps 2000 |" in (
+    assert json.loads((tmp_path / "results.json").read_text())["config"]["dropouts"] == [0.5, 0.0]
+    assert "| shipped motion, renders 8, pixels mirrored, last map averaged, head dropout 0.5, steps 2000 |" in (
         tmp_path / "results.md").read_text()
-    assert "| shipped motion, renders 8, mirrors redrawn, last map averaged, steps 2000 |" in (
+    assert "| shipped motion, renders 8, mirrors redrawn, last map averaged, head dropout 0, steps 2000 |" in (
         tmp_path / "results.md").read_text()
     assert f"## {_renders.HELD_OUT}" in (tmp_path / "results.md").read_text()
-    # Without mirrors or poolings given, the base's: the recipe's redrawn mirrors and flattened map.
+    # Without mirrors, poolings or dropouts given, the base's: the recipe's redrawn mirrors, flattened map, 0.5.
     trained.clear()
     run_renders_study(tmp_path, tmp_path / "train", base, motions, (("shipped", 8),), (2000,), (0,), validation,
                       body=None, log=records.append, progress=False, data_workers=1)
-    assert trained == [(motions["shipped"], 8, True, "flatten", 2000, 0,
+    assert trained == [(motions["shipped"], 8, True, "flatten", 0.5, 2000, 0,
                         "shipped_renders8_redraw_flatten_steps2000_seed0")]
 
 

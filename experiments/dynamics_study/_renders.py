@@ -1,19 +1,20 @@
-"""Which motion to render, how many videos per training clip, how to mirror them, how the backbone pools its last
-map, and how many steps to train the conditioning stage on them, chosen on validation: the conditioning stage (backbone
-and HMR head, :func:`dynamics.train_conditioning`) trained for each candidate (motion, renders per clip, mirrors,
-pooling, steps) with several seeds, and scored
+"""Which motion to render, how many videos per training clip, how to mirror them, how the backbone pools its last map,
+how much dropout the HMR head trains with, and how many steps to train the conditioning stage on them, chosen on
+validation: the conditioning stage (backbone and HMR head, :func:`dynamics.train_conditioning`) trained for each
+candidate (motion, renders per clip, mirrors, pooling, head dropout, steps) with several seeds, and scored
 (:func:`dynamics.conditioning_metrics`) per clip on fresh validation renders of training clips and, when given, on
-renders of held-out motion, beside the reference of a constant pose (:func:`dynamics.mean_pose_metrics`: each
-motion's mean training pose with the true root rotation).
+renders of held-out motion, beside the reference of a constant pose (:func:`dynamics.mean_pose_metrics`: each motion's
+mean training pose with the true root rotation).
 
-More motion shows the networks more poses (the shipped clips hold about 1250 frames); more renders show them more
-camera distances and body shapes for the same motion; two renders per clip (the default until 2026-11-28) left a
-depth bias on the two-person test take (docs/dynamics.md). More steps let the backbone, trained from scratch, see
-each render more often. Mirrors drawn anew keep the renders' left and right part colours on the left and right
-limbs, which mirrored pixels swap. A flattened last map keeps where in the crop each feature fired, which the
-average over positions throws away. Scored: root-relative MPJPE and PA-MPJPE, the error of the pelvis the crop camera
-places, its depth over the true depth, the root rotation's error, and the MPJPE with the true root rotation put in
-(what the local pose and shape miss)."""
+More motion shows the networks more poses (the shipped clips hold about 1250 frames); more renders show them more camera
+distances and body shapes for the same motion; two renders per clip (the default until 2026-11-28) left a depth bias on
+the two-person test take (docs/dynamics.md). More steps let the backbone, trained from scratch, see each render more
+often. Mirrors drawn anew keep the renders' left and right part colours on the left and right limbs, which mirrored
+pixels swap. A flattened last map keeps where in the crop each feature fired, which the average over positions throws
+away. The HMR head's dropout (0.5, HMR's) may hold back how well the networks fit their training renders, which they
+fit little better than the validation ones (docs/dynamics.md). Scored: root-relative MPJPE and PA-MPJPE, the error of
+the pelvis the crop camera places, its depth over the true depth, the root rotation's error, and the MPJPE with the
+true root rotation put in (what the local pose and shape miss)."""
 
 from __future__ import annotations
 
@@ -51,17 +52,21 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
                       data: Sequence[tuple[str, int]], steps: Sequence[int], seeds: Sequence[int],
                       validation: DataConfig, body: geometry.BodyModel, *, held_out: DataConfig | None = None,
                       flips: Sequence[Flips] | None = None, poolings: Sequence[Pooling] | None = None,
-                      log: Callable[[dict], None], progress: bool, data_workers: int) -> dict:
+                      dropouts: Sequence[float] | None = None, log: Callable[[dict], None], progress: bool,
+                      data_workers: int) -> dict:
     """Train ``base`` (its model) on each of the ``data`` candidates (a name of ``motions``, which maps it to its
     training clips, and the videos rendered per clip), each way of mirroring the ``flips`` (``pixels`` or ``redraw``,
     :attr:`dynamics.DataConfig.redraw_flips`; None: ``base``'s), each of the backbone's ``poolings``
-    (:attr:`dynamics.BackboneConfig.pooling`; None: ``base``'s), each number of conditioning ``steps`` and each of
-    ``seeds`` in ``workdir/<motion>_renders<R>_<flips>[_<pooling>]_steps<N>_seed<S>`` (resumable; one render cache in
+    (:attr:`dynamics.BackboneConfig.pooling`; None: ``base``'s), each of the HMR head's ``dropouts``
+    (:attr:`dynamics.PHDTConfig.hmr_dropout`; None: ``base``'s), each number of conditioning ``steps`` and each of
+    ``seeds`` in ``workdir/<motion>_renders<R>_<flips>[_<pooling>][_dropout<D>]_steps<N>_seed<S>`` (the dropout
+    named where it is not ``base``'s; resumable; one render cache in
     ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no
     candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
     flips = flips or ("redraw" if base.data.redraw_flips else "pixels",)
     poolings = poolings or (base.backbone.pooling,)
+    dropouts = dropouts or (base.model.hmr_dropout,)
     cache_dir = (workdir / "data_cache").resolve()
     groups = {}
     validation_frames = build_frames(validation, body, cache_dir, progress, data_workers)
@@ -71,16 +76,21 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
     if held_out is not None:
         groups[HELD_OUT] = build_frames(held_out, body, cache_dir, progress, data_workers)
     runs, references = [], {}
-    for (motion, count), flip, pooling, stage_steps, seed in itertools.product(data, flips, poolings, steps, seeds):
+    for (motion, count), flip, pooling, dropout, stage_steps, seed in itertools.product(data, flips, poolings, dropouts,
+                                                                                       steps, seeds):
         frames_config = dataclasses.replace(base.data, clips=motions[motion], renders=count,
                                             redraw_flips=flip == "redraw")
         config = dataclasses.replace(base, data=frames_config, image=dataclasses.replace(base.image, steps=stage_steps),
                                      backbone=dataclasses.replace(base.backbone, pooling=pooling),
+                                     model=dataclasses.replace(base.model, hmr_dropout=dropout),
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
-        candidate = {"motion": motion, "renders": count, "flips": flip, "pooling": pooling, "steps": stage_steps,
-                     "seed": seed}
-        # The mean, ResNet's pooling, keeps the folder names of the runs from before the option (they resume).
-        name = f"{motion}_renders{count}_{flip}{'' if pooling == 'mean' else '_' + pooling}_steps{stage_steps}"
+        candidate = {"motion": motion, "renders": count, "flips": flip, "pooling": pooling, "hmr_dropout": dropout,
+                     "steps": stage_steps, "seed": seed}
+        # The mean, ResNet's pooling, and the base's dropout keep the folder names of the runs from before the options
+        # (they resume).
+        tags = ("" if pooling == "mean" else f"_{pooling}") + (
+            "" if dropout == base.model.hmr_dropout else f"_dropout{dropout:g}")
+        name = f"{motion}_renders{count}_{flip}{tags}_steps{stage_steps}"
         model = train_conditioning(config, workdir / f"{name}_seed{seed}", body, resume=True, progress=progress,
                                    data_workers=data_workers,
                                    log=lambda record, candidate=candidate: log({**candidate, **record}))
@@ -91,7 +101,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
             pose = mean_local_pose(build_frames(frames_config, body, cache_dir, progress, data_workers).rotations)
             references[motion] = {group: mean_pose_metrics(body, pose, frames) for group, frames in groups.items()}
     results = {"config": {"base": base, "motions": dict(motions), "data": [list(pair) for pair in data],
-                          "flips": list(flips), "poolings": list(poolings), "steps": list(steps), "seeds": list(seeds),
+                          "flips": list(flips), "poolings": list(poolings), "dropouts": list(dropouts),
+                          "steps": list(steps), "seeds": list(seeds),
                           "validation": validation, "held_out": held_out},
                "runs": runs, "summary": renders_summary(runs), "mean_pose": references,
                "seconds": round(time.perf_counter() - started, 1)}
@@ -102,11 +113,12 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
 
 
 def _candidate_name(run: dict) -> str:
-    """A candidate's row label: its motion, renders per clip, mirrors and pooling (where the run says) and
-    conditioning steps."""
+    """A candidate's row label: its motion, renders per clip, mirrors, pooling and head dropout (where the run says)
+    and conditioning steps."""
     mirrors = {"pixels": ", pixels mirrored", "redraw": ", mirrors redrawn"}.get(run.get("flips"), "")
     pooling = {"mean": ", last map averaged", "flatten": ", last map flattened"}.get(run.get("pooling"), "")
-    return f"{run['motion']} motion, renders {run['renders']}{mirrors}{pooling}, steps {run['steps']}"
+    dropout = "" if run.get("hmr_dropout") is None else f", head dropout {run['hmr_dropout']:g}"
+    return f"{run['motion']} motion, renders {run['renders']}{mirrors}{pooling}{dropout}, steps {run['steps']}"
 
 
 def renders_summary(runs: Sequence[dict]) -> dict[str, dict]:
@@ -127,7 +139,8 @@ def renders_markdown(results: dict) -> str:
     mean-pose reference."""
     config, validation = results["config"], results["config"]["validation"]
     held_out = config.get("held_out")
-    lines = ["# Motion, renders per training clip, mirrors, pooling and conditioning steps, chosen on validation", "",
+    lines = ["# Motion, renders per training clip, mirrors, pooling, head dropout and conditioning steps, chosen on "
+             "validation", "",
              f"The conditioning stage trained for each candidate with seeds {config['seeds']} (mean ± sample "
              f"sd over them), scored on {validation['renders']} fresh render(s) of each of {validation['clips']} "
              f"(seed {validation['seed']})"
