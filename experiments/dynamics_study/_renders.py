@@ -45,6 +45,8 @@ _METRICS = {"mpjpe_mm": "MPJPE (mm)", "pa_mpjpe_mm": "PA-MPJPE (mm)", "root_mm":
 Flips = Literal["pixels", "redraw"]
 """How the mirrored training variants are made: their pixels mirrored, or the mirrored people rendered anew."""
 HELD_OUT = "held-out motion"
+_UNTAGGED = {"pooling": "mean", "hmr_dropout": 0.5}
+"""What every run trained before the pooling and dropout options had: their run folders name neither, so they resume."""
 """The group of :func:`run_renders_study`'s held-out validation frames."""
 
 
@@ -59,8 +61,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
     :attr:`dynamics.DataConfig.redraw_flips`; None: ``base``'s), each of the backbone's ``poolings``
     (:attr:`dynamics.BackboneConfig.pooling`; None: ``base``'s), each of the HMR head's ``dropouts``
     (:attr:`dynamics.PHDTConfig.hmr_dropout`; None: ``base``'s), each number of conditioning ``steps`` and each of
-    ``seeds`` in ``workdir/<motion>_renders<R>_<flips>[_<pooling>][_dropout<D>]_steps<N>_seed<S>`` (the dropout
-    named where it is not ``base``'s; resumable; one render cache in
+    ``seeds`` in ``workdir/<motion>_renders<R>_<flips>[_<pooling>][_dropout<D>]_steps<N>_seed<S>`` (pooling and
+    dropout named where they are not :data:`_UNTAGGED`'s; resumable; one render cache in
     ``workdir/data_cache``), score each on ``validation`` per clip and on all its frames, and on ``held_out`` (motion no
     candidate trains on) as a whole, and write ``out/results.json`` and ``results.md``; returns the results."""
     started = time.perf_counter()
@@ -86,10 +88,8 @@ def run_renders_study(out: Path, workdir: Path, base: TrainConfig, motions: Mapp
                                      validation=validation, seed=seed, cache_dir=str(cache_dir))
         candidate = {"motion": motion, "renders": count, "flips": flip, "pooling": pooling, "hmr_dropout": dropout,
                      "steps": stage_steps, "seed": seed}
-        # The mean, ResNet's pooling, and the base's dropout keep the folder names of the runs from before the options
-        # (they resume).
-        tags = ("" if pooling == "mean" else f"_{pooling}") + (
-            "" if dropout == base.model.hmr_dropout else f"_dropout{dropout:g}")
+        tags = ("" if pooling == _UNTAGGED["pooling"] else f"_{pooling}") + (
+            "" if dropout == _UNTAGGED["hmr_dropout"] else f"_dropout{dropout:g}")
         name = f"{motion}_renders{count}_{flip}{tags}_steps{stage_steps}"
         model = train_conditioning(config, workdir / f"{name}_seed{seed}", body, resume=True, progress=progress,
                                    data_workers=data_workers,
